@@ -1,0 +1,1 @@
+"""Curiosity-driven skill acquisition after Ngo, Luciw, Foerster and Schmidhuber (2013)."""

@@ -1,0 +1,1 @@
+"""ROS-free core: predictors, query condition, planner, explorer, worlds, metrics."""

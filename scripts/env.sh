@@ -1,0 +1,9 @@
+# Source this file to get the venv and the built workspace: `source scripts/env.sh`.
+_katana_root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+# shellcheck disable=SC1091
+source "$_katana_root/.venv/bin/activate"
+export AMENT_PREFIX_PATH=${AMENT_PREFIX_PATH:-$VIRTUAL_ENV}
+# colcon's setup script warns that the venv has no local_setup file; that is harmless.
+# shellcheck disable=SC1091
+source "$_katana_root/install/setup.bash" 2>/dev/null
+unset _katana_root
