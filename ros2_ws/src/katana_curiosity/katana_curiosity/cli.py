@@ -1,5 +1,129 @@
-"""Command line entry point (placeholder until the experiments module lands)."""
+"""`katana-curiosity`: the paper's simulated experiments from the command line."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from tqdm import tqdm
+
+from .core.experiments import DEFAULT_METHODS, RunConfig, run, run_many, save_results
+from .core.explorer import STRATEGIES
 
 
-def main() -> None:
-    raise SystemExit("katana-curiosity: not built yet")
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def _methods(text: str) -> list[str]:
+    names = [m.strip().lower() for m in text.split(",") if m.strip()]
+    unknown = [m for m in names if m not in STRATEGIES]
+    if not names or unknown:
+        raise argparse.ArgumentTypeError(
+            f"unknown method(s) {', '.join(unknown) or '(none given)'}: "
+            f"choose from {', '.join(sorted(STRATEGIES))}"
+        )
+    return list(dict.fromkeys(names))
+
+
+def _unit_interval(text: str) -> float:
+    value = float(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {value}")
+    return value
+
+
+def _add_common(p: argparse.ArgumentParser, steps: int, seeds: int, methods: str) -> None:
+    p.add_argument("--steps", type=_positive_int, default=steps, help="experiments per run")
+    p.add_argument(
+        "--seeds", type=_positive_int, default=seeds, help="runs per method (seeds 0..K-1)"
+    )
+    p.add_argument("--first-seed", type=int, default=0, help="first seed")
+    p.add_argument("--jobs", type=_positive_int, default=1, help="worker processes")
+    p.add_argument(
+        "--methods",
+        type=_methods,
+        default=_methods(methods),
+        help=f"comma-separated, from {','.join(STRATEGIES)}",
+    )
+    p.add_argument("--alpha", type=_positive_float, default=1.0, help="query condition scale")
+    p.add_argument("--theta", type=_unit_interval, default=0.01, help="query threshold, [0, 1]")
+    p.add_argument("--gamma", type=float, default=0.95, help="discount factor, [0, 1)")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--no-figures", action="store_true", help="write summary and CSV only")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="katana-curiosity",
+        description="Curiosity-driven exploration in the paper's simulated blocks world "
+        "(Ngo et al. 2013, section 3).",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    paper = sub.add_parser("paper", help="every method on every seed; summary, CSV, Figures 4-9")
+    _add_common(paper, 10_000, 10, ",".join(DEFAULT_METHODS))
+    explore = sub.add_parser("explore", help="one Q1 run with a progress bar, and its figures")
+    _add_common(explore, 10_000, 1, "q1")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not 0.0 <= args.gamma < 1.0:
+        parser.error(f"argument --gamma: must be in [0, 1), got {args.gamma}")
+    configs = [
+        RunConfig(
+            method=m, seed=s, steps=args.steps, alpha=args.alpha, theta=args.theta, gamma=args.gamma
+        )
+        for m in args.methods
+        for s in range(args.first_seed, args.first_seed + args.seeds)
+    ]
+    start = time.perf_counter()
+    if args.command == "explore" and len(configs) == 1:
+        results = _explore_with_progress(configs[0])
+    else:
+        with tqdm(total=len(configs), desc="runs", unit="run", file=sys.stderr) as bar:
+            results = run_many(configs, jobs=args.jobs, progress=lambda r: bar.update(1))
+    summary = save_results(results, args.out)
+    if not args.no_figures:
+        from .core.plots import paper_figures  # matplotlib only when figures are wanted
+
+        paper_figures(results, args.out)
+    wall = time.perf_counter() - start
+    for method, m in summary["methods"].items():
+        kl = " ".join(f"{h}:{v:.3f}" for h, v in m["final_kl"].items())
+        print(f"{method:>6}: final KL overall {m['final_kl_overall']:.4f}  per height {kl}")
+    print(f"{len(configs)} runs x {args.steps} steps in {wall:.1f} s; results in {args.out}/")
+    return 0
+
+
+def _explore_with_progress(config: RunConfig) -> list:
+    """One run with a progress bar over its steps."""
+    with tqdm(
+        total=config.steps,
+        desc=f"{config.method} seed {config.seed}",
+        unit="step",
+        file=sys.stderr,
+        mininterval=0.2,
+    ) as bar:
+        return [run(config, progress=bar.update, progress_every=max(config.steps // 200, 1))]
+
+
+if __name__ == "__main__":
+    sys.exit(main())

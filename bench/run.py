@@ -1,0 +1,67 @@
+"""`make bench`: run every bench/bench_*.py and write bench/results/<name>.json.
+
+Each module offers run() -> dict. Figures are wall-clock on this machine; each bench repeats
+its measurement and reports medians, since a shared 2-core VM is noisy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("names", nargs="*", help="benches to run (default: all), e.g. core sim")
+    parser.add_argument("--out", type=Path, default=HERE / "results")
+    args = parser.parse_args()
+    available = {p.stem.removeprefix("bench_"): p for p in sorted(HERE.glob("bench_*.py"))}
+    unknown = [n for n in args.names if n not in available]
+    if unknown:
+        parser.error(f"unknown bench {', '.join(unknown)}: choose from {', '.join(available)}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    failed = []
+    for name in args.names or list(available):
+        spec = importlib.util.spec_from_file_location(f"bench_{name}", available[name])
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        print(f"bench {name}: running", flush=True)
+        start = time.perf_counter()
+        try:
+            result = module.run()
+        except Exception as exc:  # report and go on: one broken bench must not hide the others
+            print(f"bench {name}: FAILED: {exc!r}", file=sys.stderr)
+            failed.append(name)
+            continue
+        result = {
+            "bench": name,
+            "machine": {
+                "python": platform.python_version(),
+                "cpus": _cpus(),
+                "platform": platform.platform(),
+            },
+            "bench_wall_s": round(time.perf_counter() - start, 2),
+            **result,
+        }
+        path = args.out / f"{name}.json"
+        path.write_text(json.dumps(result, indent=2) + "\n")
+        print(json.dumps(result, indent=2))
+        print(f"bench {name}: wrote {path}")
+    return 1 if failed else 0
+
+
+def _cpus() -> int:
+    import os
+
+    return os.cpu_count() or 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

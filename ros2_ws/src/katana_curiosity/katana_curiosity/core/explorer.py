@@ -1,0 +1,202 @@
+"""The exploration loop of Algorithm 1 and the strategies compared in section 3.2.
+
+A strategy looks at the setting and returns a choice: an instance to query directly, or a
+planned (state, action) pair. The explorer executes it in the world, learns from the label
+(planned outcomes are learned from too: the paper's agent "keeps on refining the learned model"
+while it exploits it) and reports what happened. A new strategy is one small class.
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from .planner import Planner
+from .predictors import PredictorBank
+from .world import PlacementUnavailable, Setting, ShuffledSetting, World
+
+QUERY, PLAN, RANDOM = 0, 1, 2
+MODE_NAMES = {QUERY: "query", PLAN: "plan", RANDOM: "random"}
+
+
+@dataclass(frozen=True)
+class Choice:
+    state: int
+    action: int
+    mode: int
+    index: int | None = None  # position in the setting for a direct choice
+
+
+@dataclass(frozen=True)
+class Step:
+    """One experiment: what was chosen, how, and the label it got."""
+
+    state: int
+    action: int
+    mode: int
+    label: int
+    margin_before: float
+    chi_before: float
+
+
+def first_unknown(bank: PredictorBank, setting: Setting | ShuffledSetting) -> Choice | None:
+    """Algorithm 1, lines 2-9: the first instance in scan order whose query condition holds."""
+    found = setting.first_where(bank.unknown)
+    if found is None:
+        return None
+    index, state, action = found
+    return Choice(state, action, QUERY, index)
+
+
+class Strategy:
+    """Base class: a strategy decides what to try in a setting."""
+
+    name: ClassVar[str] = ""
+
+    def __init__(self, bank: PredictorBank, top: int, gamma: float = 0.95, seed: int = 0) -> None:
+        self.bank = bank
+        self.top = top
+        self.gamma = gamma
+        self.rng = random.Random(seed)
+
+    def choose(self, setting: Setting | ShuffledSetting, step: int) -> Choice:
+        raise NotImplementedError
+
+    def alternatives(self, setting: Setting | ShuffledSetting, failed: Choice) -> list[Choice]:
+        """Other choices to try when the world cannot realise `failed` (ranked)."""
+        return []
+
+
+class PlanningStrategy(Strategy):
+    """Shared by the strategies that plan on the phantom-reward MDP."""
+
+    reward: ClassVar[str] = "query"
+
+    def __init__(self, bank: PredictorBank, top: int, gamma: float = 0.95, seed: int = 0) -> None:
+        super().__init__(bank, top, gamma, seed)
+        self.planner = Planner(bank, top, gamma, reward=self.reward)
+
+    def planned(self, setting: Setting | ShuffledSetting, q: np.ndarray | None = None) -> Choice:
+        s, a = self.planner.choose(setting.available, q)
+        return Choice(s, a, PLAN)
+
+    def alternatives(self, setting: Setting | ShuffledSetting, failed: Choice) -> list[Choice]:
+        q = self.planner.q
+        pairs = [(q[s, a], s, a) for s in setting.available for a in range(q.shape[1])]
+        pairs.sort(key=lambda t: (-t[0], -t[1], t[2]))
+        return [
+            Choice(s, a, failed.mode)
+            for _, s, a in pairs
+            if (s, a) != (failed.state, failed.action)
+        ]
+
+
+class Q1(PlanningStrategy):
+    """The paper's method: query the first unknown instance; plan only when none is unknown."""
+
+    name = "q1"
+
+    def choose(self, setting: Setting | ShuffledSetting, step: int) -> Choice:
+        direct = first_unknown(self.bank, setting)
+        if direct is not None:
+            return direct
+        self.planner.solve()
+        return self.planned(setting)
+
+
+class Q10(Q1):
+    """Like Q1, but the exploration policy is re-planned only every `period` observations."""
+
+    name = "q10"
+    period: ClassVar[int] = 10
+
+    def __init__(self, bank: PredictorBank, top: int, gamma: float = 0.95, seed: int = 0) -> None:
+        super().__init__(bank, top, gamma, seed)
+        self.solved_at: int | None = None
+
+    def choose(self, setting: Setting | ShuffledSetting, step: int) -> Choice:
+        if self.solved_at is None or step - self.solved_at >= self.period:
+            self.planner.solve()
+            self.solved_at = step
+        direct = first_unknown(self.bank, setting)
+        if direct is not None:
+            return direct
+        return self.planned(setting)
+
+
+class Conf(PlanningStrategy):
+    """Ngo et al. 2012: plan every step with the confidence chi itself as the phantom reward."""
+
+    name = "conf"
+    reward = "confidence"
+
+    def choose(self, setting: Setting | ShuffledSetting, step: int) -> Choice:
+        self.planner.solve()
+        return self.planned(setting)
+
+
+class RandomChoice(Strategy):
+    """Uniform random instance of the setting: undirected babbling."""
+
+    name = "random"
+
+    def choose(self, setting: Setting | ShuffledSetting, step: int) -> Choice:
+        index, state, action = setting.random_instance(self.rng)
+        return Choice(state, action, RANDOM, index)
+
+
+STRATEGIES: dict[str, type[Strategy]] = {cls.name: cls for cls in (Q1, Q10, Conf, RandomChoice)}
+
+
+def make_strategy(
+    name: str, bank: PredictorBank, top: int, gamma: float = 0.95, seed: int = 0
+) -> Strategy:
+    try:
+        cls = STRATEGIES[name]
+    except KeyError:
+        raise ValueError(
+            f"unknown method {name!r}: choose from {', '.join(sorted(STRATEGIES))}"
+        ) from None
+    return cls(bank, top, gamma, seed)
+
+
+class Explorer:
+    """Algorithm 1 in a loop: observe, query or plan, execute, learn."""
+
+    def __init__(
+        self, world: World, bank: PredictorBank, strategy: Strategy, max_alternatives: int = 20
+    ) -> None:
+        self.world, self.bank, self.strategy = world, bank, strategy
+        self.max_alternatives = max_alternatives
+        self.steps = 0
+
+    def step(self) -> Step:
+        setting = self.world.observe()
+        if len(setting) == 0:
+            raise PlacementUnavailable("the setting offers no instance")
+        choice = self.strategy.choose(setting, self.steps)
+        label, choice = self._execute(setting, choice)
+        s, a = choice.state, choice.action
+        margin, chi = float(self.bank.margin[s, a]), float(self.bank.chi[s, a])
+        self.bank.update(s, a, label)
+        self.steps += 1
+        return Step(s, a, choice.mode, label, margin, chi)
+
+    def _execute(self, setting: Setting | ShuffledSetting, choice: Choice) -> tuple[int, Choice]:
+        try:
+            return self.world.execute(choice.state, choice.action, choice.index), choice
+        except PlacementUnavailable:
+            if choice.index is not None:
+                raise
+        # A planned pair the world cannot realise: try the next best ones.
+        for alternative in self.strategy.alternatives(setting, choice)[: self.max_alternatives]:
+            try:
+                return self.world.execute(alternative.state, alternative.action, None), alternative
+            except PlacementUnavailable:
+                continue
+        raise PlacementUnavailable(
+            f"no placement realises ({choice.state}, {choice.action}) or any alternative"
+        )

@@ -1,0 +1,282 @@
+"""Planning with phantom rewards (paper section 2.4): the MDP over heights, solved by LSPI.
+
+States are stack heights 0..top, where `top` (one above the highest height a block can be placed
+on) is absorbing. Transitions come from the predictors' margins:
+P(s+1 | s, a) = (1 + margin) / 2, and the rest, (1 - margin) / 2, spread evenly over the heights
+a stack can topple to (1..s; for s = 0 it stays 0). States without a predictor (the table in the
+paper's simulation) move to s+1 with certainty. Rewards are phantom: 1 where the query condition
+holds (Q1, Q10), or the confidence chi itself (Conf).
+
+The policy is found by LSPI (Lagoudakis and Parr 2003) with LSTDQ-Model: the model is known, so
+each LSTDQ solve weighs every state-action pair once with its exact expected next features.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Protocol
+
+import numpy as np
+
+from .predictors import PredictorBank
+
+
+@dataclass
+class HeightMDP:
+    """A finite MDP: P[s, a, s'] and R[s, a]; the last state is absorbing with no reward."""
+
+    transitions: np.ndarray
+    rewards: np.ndarray
+    gamma: float = 0.95
+
+    @property
+    def n_states(self) -> int:
+        return self.transitions.shape[0]
+
+    @property
+    def n_actions(self) -> int:
+        return self.transitions.shape[1]
+
+
+def clip_margin(margin: np.ndarray) -> np.ndarray:
+    return np.clip(margin, -1.0, 1.0)
+
+
+@lru_cache(maxsize=16)
+def _height_structure(top: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where a placement on height s goes: up[s] if it stays, down[s] (spread) if it falls."""
+    n = top + 1
+    up, down = np.zeros((n, n)), np.zeros((n, n))
+    for s in range(top):
+        up[s, s + 1] = 1.0
+        low = 1 if s >= 1 else 0
+        down[s, low : s + 1] = 1.0 / (s + 1 - low)
+    up.flags.writeable = down.flags.writeable = False
+    return up, down
+
+
+def _stability(bank: PredictorBank, top: int, rows: np.ndarray) -> np.ndarray:
+    """P(s+1 | s, a) for the given rows of states 0..top."""
+    stable = (1.0 + clip_margin(bank.margin[rows])) / 2.0
+    stable[bank.slot[rows] < 0] = 1.0  # no predictor: a placement there always succeeds
+    stable[rows == top] = 0.0  # absorbing: down[top] is all zero, so the row has no mass
+    return stable
+
+
+def transition_model(bank: PredictorBank, top: int, rows: np.ndarray | None = None) -> np.ndarray:
+    """P[s, a, s'] over states 0..top from the bank's margins (section 2.4), for `rows` of s."""
+    up, down = _height_structure(top)
+    rows = np.arange(top + 1) if rows is None else np.asarray(rows)
+    stable = _stability(bank, top, rows)
+    return (
+        stable[:, :, None] * up[rows][:, None, :]
+        + (1.0 - stable)[:, :, None] * down[rows][:, None, :]
+    )
+
+
+def phantom_rewards(
+    bank: PredictorBank, top: int, kind: str = "query", rows: np.ndarray | None = None
+) -> np.ndarray:
+    """R[s, a]: 1 where the query condition holds ("query"), or chi itself ("confidence")."""
+    rows = np.arange(top + 1) if rows is None else np.asarray(rows)
+    learned = (bank.slot[rows] >= 0) & (rows < top)
+    r = np.zeros((len(rows), bank.n_actions))
+    if kind == "query":
+        r[learned] = bank.unknown[rows[learned]]
+    elif kind == "confidence":
+        r[learned] = bank.chi[rows[learned]]
+    else:
+        raise ValueError(f"unknown reward kind {kind!r}: use 'query' or 'confidence'")
+    return r
+
+
+def build_mdp(
+    bank: PredictorBank, top: int, gamma: float = 0.95, reward: str = "query"
+) -> HeightMDP:
+    return HeightMDP(transition_model(bank, top), phantom_rewards(bank, top, reward), gamma)
+
+
+# -- basis functions -------------------------------------------------------------------------
+
+
+class Basis(Protocol):
+    """phi(s, a) for LSTDQ; `dim` features per pair."""
+
+    dim: int
+
+    def __call__(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass
+class TabularBasis:
+    """One indicator per (state, action): LSTDQ is then exact policy evaluation."""
+
+    n_states: int
+    n_actions: int
+    dim: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.dim = self.n_states * self.n_actions
+
+    def __call__(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        phi = np.zeros((len(states), self.dim))
+        phi[np.arange(len(states)), np.asarray(states) * self.n_actions + actions] = 1.0
+        return phi
+
+
+@dataclass
+class PolynomialBasis:
+    """A compact basis: per action, a polynomial in the normalised height (large state spaces)."""
+
+    n_states: int
+    n_actions: int
+    degree: int = 2
+    dim: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.dim = self.n_actions * (self.degree + 1)
+
+    def __call__(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        z = np.asarray(states, dtype=float) / max(self.n_states - 1, 1)
+        powers = z[:, None] ** np.arange(self.degree + 1)
+        phi = np.zeros((len(z), self.dim))
+        cols = np.asarray(actions)[:, None] * (self.degree + 1) + np.arange(self.degree + 1)
+        phi[np.arange(len(z))[:, None], cols] = powers
+        return phi
+
+
+# -- LSTDQ-Model and LSPI --------------------------------------------------------------------
+
+
+def lstdq_model(mdp: HeightMDP, basis: Basis, policy: np.ndarray) -> np.ndarray:
+    """Weights of Q^policy projected on the basis, from the known model (uniform over pairs)."""
+    ns, na = mdp.n_states, mdp.n_actions
+    s_all = np.repeat(np.arange(ns), na)
+    a_all = np.tile(np.arange(na), ns)
+    phi = basis(s_all, a_all)  # (ns*na, k)
+    phi_next_state = basis(np.arange(ns), policy)  # (ns, k): phi(s', pi(s'))
+    expected_next = mdp.transitions.reshape(ns * na, ns) @ phi_next_state
+    a_mat = phi.T @ (phi - mdp.gamma * expected_next)
+    b_vec = phi.T @ mdp.rewards.reshape(-1)
+    return np.linalg.lstsq(a_mat, b_vec, rcond=None)[0]
+
+
+def q_from_weights(mdp: HeightMDP, basis: Basis, weights: np.ndarray) -> np.ndarray:
+    ns, na = mdp.n_states, mdp.n_actions
+    s_all = np.repeat(np.arange(ns), na)
+    a_all = np.tile(np.arange(na), ns)
+    return (basis(s_all, a_all) @ weights).reshape(ns, na)
+
+
+def evaluate_tabular(mdp: HeightMDP, policy: np.ndarray) -> np.ndarray:
+    """Q^policy exactly, through the state-space linear system.
+
+    This is what LSTDQ-Model computes with a tabular basis (the test suite checks the two agree);
+    solving for V over states instead of Q over pairs keeps planning within microseconds.
+    """
+    ns = mdp.n_states
+    idx = np.arange(ns)
+    p_pi = mdp.transitions[idx, policy]
+    v = np.linalg.solve(np.eye(ns) - mdp.gamma * p_pi, mdp.rewards[idx, policy])
+    return mdp.rewards + mdp.gamma * (mdp.transitions @ v)
+
+
+@dataclass
+class LSPIResult:
+    q: np.ndarray
+    policy: np.ndarray
+    iterations: int
+
+
+def lspi(
+    mdp: HeightMDP,
+    basis: Basis | None = None,
+    initial_policy: np.ndarray | None = None,
+    max_iterations: int = 50,
+) -> LSPIResult:
+    """Policy iteration with LSTDQ-Model evaluation, warm-started from `initial_policy`."""
+    ns, na = mdp.n_states, mdp.n_actions
+    policy = (
+        np.zeros(ns, dtype=int) if initial_policy is None else np.asarray(initial_policy).copy()
+    )
+    tabular = basis is None or isinstance(basis, TabularBasis)
+    q = np.zeros((ns, na))
+    for iteration in range(1, max_iterations + 1):
+        if tabular:
+            q = evaluate_tabular(mdp, policy)
+        else:
+            q = q_from_weights(mdp, basis, lstdq_model(mdp, basis, policy))
+        # Keep the current action on ties so that policy iteration terminates.
+        best = q.argmax(axis=1)
+        keep = q[np.arange(ns), policy] >= q[np.arange(ns), best] - 1e-12
+        new_policy = np.where(keep, policy, best)
+        if np.array_equal(new_policy, policy):
+            return LSPIResult(q, policy, iteration)
+        policy = new_policy
+    return LSPIResult(q, policy, max_iterations)
+
+
+def value_iteration(
+    mdp: HeightMDP, tol: float = 1e-12, max_iterations: int = 100_000
+) -> np.ndarray:
+    """Optimal Q by value iteration: the independent reference the tests compare LSPI with."""
+    q = np.zeros((mdp.n_states, mdp.n_actions))
+    for _ in range(max_iterations):
+        q_new = mdp.rewards + mdp.gamma * (mdp.transitions @ q.max(axis=1))
+        if np.max(np.abs(q_new - q)) < tol:
+            return q_new
+        q = q_new
+    return q
+
+
+class Planner:
+    """Chooses (s*, a*) among the available heights (section 2.2) from an LSPI plan.
+
+    The plan is re-solved from the last policy, so a call after a small model change usually
+    costs one or two policy evaluations.
+    """
+
+    def __init__(
+        self,
+        bank: PredictorBank,
+        top: int,
+        gamma: float = 0.95,
+        reward: str = "query",
+        basis: Basis | None = None,
+    ) -> None:
+        if not 0.0 <= gamma < 1.0:
+            raise ValueError(f"gamma must be in [0, 1), got {gamma}")
+        if not 1 <= top < bank.n_states:
+            raise ValueError(f"top must be in [1, {bank.n_states - 1}], got {top}")
+        if reward not in ("query", "confidence"):
+            raise ValueError(f"unknown reward kind {reward!r}: use 'query' or 'confidence'")
+        self.bank, self.top, self.gamma, self.reward, self.basis = bank, top, gamma, reward, basis
+        self.policy = np.zeros(top + 1, dtype=int)
+        self.q = np.zeros((top + 1, bank.n_actions))
+        self.calls = 0
+        self._mdp: HeightMDP | None = None
+        self._seen = np.full(top + 1, -1, dtype=np.int64)
+
+    def solve(self) -> np.ndarray:
+        """Re-plan on the current model; only the MDP rows of heights that changed are rebuilt."""
+        rows = np.flatnonzero(self.bank.version[: self.top + 1] != self._seen)
+        if self._mdp is None:
+            self._mdp = build_mdp(self.bank, self.top, self.gamma, self.reward)
+        elif len(rows):
+            self._mdp.transitions[rows] = transition_model(self.bank, self.top, rows)
+            self._mdp.rewards[rows] = phantom_rewards(self.bank, self.top, self.reward, rows)
+        self._seen = self.bank.version[: self.top + 1].copy()
+        result = lspi(self._mdp, self.basis, self.policy)
+        self.policy, self.q = result.policy, result.q
+        self.calls += 1
+        return self.q
+
+    def choose(self, available: np.ndarray, q: np.ndarray | None = None) -> tuple[int, int]:
+        """Best available state by V(s) = max_a Q(s, a) (ties: the higher), then its best action."""
+        q = self.q if q is None else q
+        available = np.asarray(available)
+        values = q[available].max(axis=1)
+        # Last maximum: among equally valuable heights, the higher one builds towards the unknown.
+        s = int(available[len(values) - 1 - int(np.argmax(values[::-1]))])
+        return s, int(np.argmax(q[s]))

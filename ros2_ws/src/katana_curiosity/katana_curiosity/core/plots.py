@@ -1,0 +1,217 @@
+"""Figures 4-9 of the paper from experiment results (matplotlib, headless)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .experiments import RunResult  # noqa: E402
+from .explorer import PLAN, QUERY  # noqa: E402
+from .metrics import experience_histogram  # noqa: E402
+
+METHOD_LABELS = {"q1": "Q1", "q10": "Q10", "conf": "Conf", "random": "Random"}
+
+
+def _colors(n: int) -> list:
+    return [plt.get_cmap("viridis")(i / max(n - 1, 1)) for i in range(n)]
+
+
+def _runs(results: Sequence[RunResult], method: str) -> list[RunResult]:
+    return [r for r in results if r.config.method == method]
+
+
+def figure4(results: Sequence[RunResult], path: Path, method: str = "q1") -> None:
+    """Cumulative direct and planned experience per height (mean over seeds), Figure 4."""
+    runs = _runs(results, method)
+    steps = runs[0].record_steps
+    direct = np.mean([r.cumulative(QUERY) for r in runs], axis=0)
+    planned = np.mean([r.cumulative(PLAN) for r in runs], axis=0)
+    n_states = runs[0].n_states - 1
+    colors = _colors(n_states)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), sharey=True)
+    for s in range(n_states):
+        if direct[-1, s] > 0:
+            axes[0].plot(steps, direct[:, s], color=colors[s], label=f"height {s}")
+        if planned[-1, s] > 0:
+            axes[1].plot(steps, planned[:, s], color=colors[s], label=f"height {s}")
+    first = runs[0]
+    for s in range(1, n_states):
+        hits = np.flatnonzero((first.states == s) & (first.modes == QUERY))
+        if len(hits):
+            for ax in axes:
+                ax.axvline(hits[-1] + 1, color=colors[s], lw=0.8, ls=":")
+    axes[0].set_title(f"Direct exploration ({METHOD_LABELS.get(method, method)})")
+    axes[1].set_title("Planned exploration")
+    for ax in axes:
+        ax.set_xlabel("timestep")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel(f"cumulative experience (mean of {len(runs)} runs)")
+    axes[1].legend(fontsize=8, loc="upper left")
+    fig.suptitle(
+        "Figure 4: developmental stages; dotted lines: end of direct exploration "
+        f"per height in run seed={first.config.seed}",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def figure5(results: Sequence[RunResult], path: Path, method: str = "q1") -> None:
+    """KL divergence between learned and true models per height over time, Figure 5."""
+    runs = _runs(results, method)
+    steps = runs[0].record_steps
+    kl = np.mean([r.kl for r in runs], axis=0)
+    heights = runs[0].heights
+    colors = _colors(len(heights) + 1)
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for i, h in enumerate(heights):
+        ax.plot(steps, kl[:, i], color=colors[h], label=f"height {h}")
+    ax.set_yscale("log")
+    ax.set_xlabel("timestep")
+    ax.set_ylabel("KL(true || learned), mean over features")
+    ax.set_title(
+        f"Figure 5: learning progress ({METHOD_LABELS.get(method, method)}, "
+        f"mean of {len(runs)} runs)"
+    )
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _focus_row(ax_hist, ax_model, result: RunResult, state: int, snap: int) -> None:
+    n_actions = result.true_margin.shape[1]
+    upto = int(result.snapshot_steps[snap])
+    counts = experience_histogram(
+        result.states.astype(int), result.actions.astype(int), state, n_actions, upto
+    )
+    idx = np.arange(1, n_actions + 1)
+    unknown = np.flatnonzero(result.snapshot_unknown[snap, state])
+    for ax in (ax_hist, ax_model):
+        if len(unknown):
+            ax.axvspan(unknown.min() + 0.5, unknown.max() + 1.5, color="orange", alpha=0.2)
+            ax.axvline(unknown.min() + 0.5, color="orange", lw=0.8)
+            ax.axvline(unknown.max() + 1.5, color="orange", lw=0.8)
+    ax_hist.bar(idx, counts, color="steelblue")
+    ax_hist.set_ylabel(f"t={upto}\nexperience", fontsize=8)
+    margin = result.snapshot_margin[snap, state]
+    chi = result.snapshot_chi[snap, state]
+    ax_model.plot(idx, result.true_margin[state], "r-", lw=1.2, label="true margin")
+    ax_model.plot(idx, margin, "b--", lw=1.2, label="learned margin")
+    ax_model.plot(idx, margin + chi, "k-", lw=0.5, label="margin +- chi")
+    ax_model.plot(idx, margin - chi, "k-", lw=0.5)
+    ax_model.axhline(0, color="grey", lw=0.5)
+    ax_model.set_ylim(-1.6, 1.6)
+    for ax in (ax_hist, ax_model):
+        ax.set_xlim(0.5, n_actions + 0.5)
+        ax.tick_params(labelsize=7)
+
+
+def focus_figure(
+    result: RunResult, state: int, path: Path, snaps: Sequence[int] | None = None, title: str = ""
+) -> None:
+    """Exploration focus at one height (Figures 6 and 7): experience and model over time."""
+    snaps = list(range(len(result.snapshot_steps))) if snaps is None else list(snaps)
+    fig, axes = plt.subplots(len(snaps), 2, figsize=(10, 1.9 * len(snaps) + 0.8), squeeze=False)
+    for row, snap in enumerate(snaps):
+        _focus_row(axes[row, 0], axes[row, 1], result, state, snap)
+    axes[0, 1].legend(fontsize=7, loc="upper left")
+    axes[-1, 0].set_xlabel("feature index (ascending stability)")
+    axes[-1, 1].set_xlabel("feature index (ascending stability)")
+    fig.suptitle(
+        title or f"Exploration focus at height {state}; shaded: still unknown", fontsize=10
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def figure8(result: RunResult, path: Path, heights: Sequence[int] = (1, 2, 3, 4, 5, 6)) -> None:
+    """Exploration focus of the first six heights at the end of the run (Figure 8)."""
+    last = len(result.snapshot_steps) - 1
+    fig, axes = plt.subplots(len(heights), 2, figsize=(10, 1.9 * len(heights) + 0.8), squeeze=False)
+    for row, h in enumerate(heights):
+        _focus_row(axes[row, 0], axes[row, 1], result, h, last)
+        axes[row, 0].set_ylabel(f"height {h}\nexperience", fontsize=8)
+    axes[0, 1].legend(fontsize=7, loc="upper left")
+    axes[-1, 0].set_xlabel("feature index (ascending stability)")
+    axes[-1, 1].set_xlabel("feature index (ascending stability)")
+    fig.suptitle(
+        f"Figure 8: heights 1-6 at t={int(result.snapshot_steps[last])} "
+        f"(run seed={result.config.seed}); shaded: still unknown",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def figure9(results: Sequence[RunResult], path: Path) -> None:
+    """KL per height and overall for every method (Figure 9)."""
+    methods = list(dict.fromkeys(r.config.method for r in results))
+    heights = results[0].heights
+    steps = results[0].record_steps
+    n = len(heights) + 1
+    cols = 4
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(14, 3.2 * rows), squeeze=False)
+    for m in methods:
+        runs = _runs(results, m)
+        kl = np.mean([r.kl for r in runs], axis=0)
+        for i in range(len(heights)):
+            axes.flat[i].plot(steps, kl[:, i], label=METHOD_LABELS.get(m, m))
+        axes.flat[len(heights)].plot(steps, kl.mean(axis=1), label=METHOD_LABELS.get(m, m))
+    for i, h in enumerate(heights):
+        axes.flat[i].set_title(f"height {h}", fontsize=9)
+    axes.flat[len(heights)].set_title("overall (mean of heights)", fontsize=9)
+    for ax in axes.flat[:n]:
+        ax.set_yscale("log")
+        ax.grid(alpha=0.3, which="both")
+        ax.tick_params(labelsize=7)
+    for ax in axes.flat[n:]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=8)
+    seeds = len(_runs(results, methods[0]))
+    fig.suptitle(f"Figure 9: KL(true || learned) over time, mean of {seeds} runs", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def paper_figures(results: Sequence[RunResult], out: Path) -> list[Path]:
+    """Write fig4..fig9 for the results into `out`; figures 4-8 use Q1 when it was run."""
+    methods = list(dict.fromkeys(r.config.method for r in results))
+    main = "q1" if "q1" in methods else methods[0]
+    first = _runs(results, main)[0]
+    paths = []
+    figure4(results, out / "fig4.png", main)
+    figure5(results, out / "fig5.png", main)
+    early = [i for i, s in enumerate(first.snapshot_steps) if s < first.config.steps] or [0]
+    focus_figure(
+        first,
+        1,
+        out / "fig6.png",
+        early,
+        f"Figure 6: exploration focus at height 1 (run seed={first.config.seed}); "
+        "shaded: still unknown",
+    )
+    focus_figure(
+        first,
+        2,
+        out / "fig7.png",
+        early,
+        f"Figure 7: exploration focus at height 2 (run seed={first.config.seed}); "
+        "shaded: still unknown",
+    )
+    figure8(first, out / "fig8.png", [h for h in (1, 2, 3, 4, 5, 6) if h < first.n_states - 1])
+    figure9(results, out / "fig9.png")
+    paths = [out / f"fig{i}.png" for i in range(4, 10)]
+    return paths

@@ -1,0 +1,134 @@
+"""Metrics against brute force, and the paper command's outputs."""
+
+import csv
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from katana_curiosity.cli import main
+from katana_curiosity.core.experiments import RunConfig, run, summarise
+from katana_curiosity.core.explorer import PLAN, QUERY
+from katana_curiosity.core.metrics import (
+    bernoulli_kl,
+    cumulative_by_state,
+    direct_exploration_end,
+    experience_histogram,
+    model_kl,
+)
+
+
+@settings(max_examples=50, deadline=None)
+@given(p=st.floats(0.0, 1.0), q=st.floats(0.001, 0.999))
+def test_bernoulli_kl_matches_the_definition(p: float, q: float) -> None:
+    expected = sum(pi * np.log(pi / qi) for pi, qi in ((p, q), (1 - p, 1 - q)) if pi > 0)
+    assert bernoulli_kl(p, q) == pytest.approx(expected, abs=1e-12)
+    assert bernoulli_kl(p, q) >= 0
+
+
+def test_model_kl_is_zero_for_the_true_model_and_finite_outside_the_unit_interval() -> None:
+    rng = np.random.default_rng(0)
+    true = rng.uniform(-0.9, 0.9, (3, 21))
+    assert np.allclose(model_kl(true, true), 0.0, atol=1e-12)
+    learned = true + 0.2
+    assert np.all(model_kl(true, learned) > 0)
+    assert np.all(np.isfinite(model_kl(true, np.full((3, 21), 5.0))))
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 1000))
+def test_cumulative_counts_and_histograms_match_brute_force(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    states = rng.integers(0, 5, 200)
+    actions = rng.integers(0, 7, 200)
+    modes = rng.integers(0, 3, 200)
+    at = np.array([0, 1, 50, 199, 200])
+    got = cumulative_by_state(states, modes == QUERY, 5, at)
+    for i, t in enumerate(at):
+        for s in range(5):
+            assert got[i, s] == sum(1 for k in range(t) if states[k] == s and modes[k] == QUERY)
+    hist = experience_histogram(states, actions, 3, 7, 120)
+    assert hist.tolist() == [
+        sum(1 for k in range(120) if states[k] == 3 and actions[k] == a) for a in range(7)
+    ]
+    end = direct_exploration_end(states, modes, 2)
+    hits = [k for k in range(200) if states[k] == 2 and modes[k] == QUERY]
+    assert end == (hits[-1] + 1 if hits else -1)
+
+
+def test_run_records_are_consistent() -> None:
+    result = run(RunConfig(method="q1", seed=1, steps=700, record_every=100, snapshots=(200,)))
+    assert result.record_steps.tolist() == [0, 100, 200, 300, 400, 500, 600, 700]
+    assert result.kl.shape == (8, 7)
+    assert result.snapshot_steps.tolist() == [200, 700]
+    assert set(np.unique(result.labels)) <= {-1, 1}
+    assert np.all(result.labels[result.states == 0] == 1), "the table is always stable"
+    direct = result.cumulative(QUERY)
+    planned = result.cumulative(PLAN)
+    assert direct[-1].sum() + planned[-1].sum() == 700
+
+
+def test_paper_command_writes_summary_csv_and_figures(tmp_path) -> None:
+    out = tmp_path / "paper"
+    code = main(
+        [
+            "paper",
+            "--steps",
+            "300",
+            "--seeds",
+            "2",
+            "--jobs",
+            "2",
+            "--methods",
+            "q1,random",
+            "--out",
+            str(out),
+        ]
+    )
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["steps"] == 300 and summary["seeds"] == [0, 1]
+    for method in ("q1", "random"):
+        m = summary["methods"][method]
+        assert sorted(m["final_kl"], key=int) == [str(h) for h in range(1, 8)]
+        assert m["final_kl_overall"] == pytest.approx(np.mean(list(m["final_kl"].values())))
+    for name in ("fig4", "fig5", "fig6", "fig7", "fig8", "fig9"):
+        data = (out / f"{name}.png").read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+    with open(out / "runs" / "q1_seed1.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert rows[-1]["step"] == "300"
+    total = sum(int(rows[-1][f"direct_{s}"]) + int(rows[-1][f"planned_{s}"]) for s in range(8))
+    assert total == 300
+
+
+def test_summary_matches_the_runs() -> None:
+    results = [run(RunConfig(method="q1", seed=s, steps=200)) for s in (0, 1)]
+    summary = summarise(results)
+    final = np.mean([r.kl[-1] for r in results], axis=0)
+    assert summary["methods"]["q1"]["final_kl"]["3"] == pytest.approx(final[2])
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--methods", "q1,bogus"], "unknown method"),
+        (["--steps", "0"], "must be >= 1"),
+        (["--theta", "1.5"], "must be in [0, 1]"),
+        (["--alpha", "-1"], "must be > 0"),
+        (["--gamma", "1.0"], "--gamma"),
+    ],
+)
+def test_invalid_cli_arguments_give_a_clear_error(tmp_path, args, message) -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "katana_curiosity", "paper", "--out", str(tmp_path), *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 2
+    assert message in proc.stderr
+    assert not (tmp_path / "summary.json").exists()

@@ -1,0 +1,127 @@
+"""Algorithm 1 and the strategies: when they query, when they plan, and what they reach."""
+
+import math
+
+import numpy as np
+import pytest
+from katana_curiosity.core.abstract_world import AbstractBlocksWorld
+from katana_curiosity.core.experiments import RunConfig, run
+from katana_curiosity.core.explorer import PLAN, QUERY, RANDOM, Explorer, make_strategy
+from katana_curiosity.core.predictors import PredictorBank, QueryRule
+from katana_curiosity.core.world import Setting
+
+
+class TracingWorld:
+    """Wraps a world and records, at every observation, what the bank then held unknown."""
+
+    def __init__(self, world: AbstractBlocksWorld, bank: PredictorBank, shuffled: bool) -> None:
+        self.world, self.bank, self.shuffled = world, bank, shuffled
+        self.unknown_available: list[bool] = []
+        self.unknown_at_observe: list[np.ndarray] = []
+        self.rng = np.random.default_rng(0)
+
+    def observe(self):
+        setting = self.world.observe()
+        if not self.shuffled:  # an explicit scan order, to exercise the generic Setting
+            order = self.rng.permutation(len(setting))
+            setting = Setting.from_pairs(setting.states[order], setting.actions[order])
+            self.world._last = setting
+        self.unknown_at_observe.append(self.bank.unknown.copy())
+        self.unknown_available.append(bool(self.bank.unknown[setting.available].any()))
+        return setting
+
+    def execute(self, state, action, index=None):
+        return self.world.execute(state, action, index)
+
+
+def make(method: str, seed: int = 0, shuffled: bool = True):
+    world = AbstractBlocksWorld(seed=seed)
+    bank = PredictorBank(
+        world.learned_heights, world.features, QueryRule(1.0, 0.01), n_states=world.top + 1
+    )
+    tracing = TracingWorld(world, bank, shuffled)
+    strategy = make_strategy(method, bank, world.top, seed=seed)
+    return Explorer(tracing, bank, strategy), tracing, strategy
+
+
+@pytest.mark.parametrize("method", ["q1", "q10"])
+@pytest.mark.parametrize("shuffled", [True, False])
+def test_q1_never_plans_while_an_unknown_instance_is_available(method, shuffled) -> None:
+    explorer, tracing, _ = make(method, seed=3, shuffled=shuffled)
+    modes = []
+    for t in range(4000):
+        step = explorer.step()
+        modes.append(step.mode)
+        if step.mode == PLAN:
+            assert not tracing.unknown_available[t]
+        else:
+            assert step.mode == QUERY
+            assert tracing.unknown_at_observe[t][step.state, step.action], "queried a known one"
+    assert PLAN in modes and QUERY in modes
+
+
+def test_generic_scan_queries_the_first_unknown_in_scan_order() -> None:
+    explorer, tracing, _ = make("q1", seed=1, shuffled=False)
+    for _ in range(200):
+        step = explorer.step()
+        setting = tracing.world._last
+        if step.mode == QUERY and isinstance(setting, Setting):
+            flags = tracing.unknown_at_observe[-1][setting.states, setting.actions]
+            first = int(np.argmax(flags))
+            assert (setting.states[first], setting.actions[first]) == (step.state, step.action)
+
+
+def test_q10_replans_every_ten_observations_and_conf_every_step() -> None:
+    explorer, _, strategy = make("q10", seed=2)
+    for _ in range(95):
+        explorer.step()
+    assert strategy.planner.calls == math.ceil(95 / 10)
+    explorer, _, strategy = make("conf", seed=2)
+    modes = [explorer.step().mode for _ in range(50)]
+    assert strategy.planner.calls == 50 and set(modes) == {PLAN}
+    explorer, _, strategy = make("random", seed=2)
+    assert {explorer.step().mode for _ in range(50)} == {RANDOM}
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_q1_reaches_height_five_within_a_bounded_number_of_steps(seed: int) -> None:
+    result = run(RunConfig(method="q1", seed=seed, steps=1000))
+    assert result.states.max() >= 5
+
+
+def test_planned_outcomes_also_update_the_model() -> None:
+    result = run(RunConfig(method="conf", seed=0, steps=300))
+    assert np.all(result.modes == PLAN)
+    assert np.any(result.kl[-1] < result.kl[0]), "learning happened from planned steps alone"
+
+
+@pytest.mark.parametrize("method", ["q1", "q10", "conf", "random"])
+def test_same_seed_same_results(method: str) -> None:
+    a = run(RunConfig(method=method, seed=4, steps=600))
+    b = run(RunConfig(method=method, seed=4, steps=600))
+    for name in ("states", "actions", "modes", "labels", "kl"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    c = run(RunConfig(method=method, seed=5, steps=600))
+    assert not np.array_equal(a.states, c.states)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"method": "q2"}, "unknown method"),
+        ({"steps": 0}, "steps"),
+        ({"alpha": -1.0}, "alpha"),
+        ({"theta": 2.0}, "theta"),
+        ({"gamma": 1.0}, "gamma"),
+    ],
+)
+def test_invalid_run_arguments_give_a_clear_error(kwargs, match) -> None:
+    with pytest.raises(ValueError, match=match):
+        RunConfig(**kwargs)
+
+
+def test_unknown_strategy_name_lists_the_known_ones() -> None:
+    world = AbstractBlocksWorld()
+    bank = PredictorBank(world.learned_heights, world.features, n_states=world.top + 1)
+    with pytest.raises(ValueError, match="conf, q1, q10, random"):
+        make_strategy("greedy", bank, world.top)
