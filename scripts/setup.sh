@@ -16,6 +16,11 @@ for tool in cmake cc; do
   command -v "$tool" >/dev/null || { echo "setup: '$tool' is missing (apt-get install cmake build-essential)." >&2; exit 1; }
 done
 
+# Two setups at once (two terminals, parallel jobs) would corrupt the build: take turns.
+mkdir -p "$root/log"
+exec 9>"$root/log/.setup.lock"
+flock 9
+
 if [ ! -x "$venv/bin/python" ]; then
   echo "setup: creating $venv"
   "$python" -m venv "$venv"

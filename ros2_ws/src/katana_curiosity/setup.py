@@ -19,6 +19,7 @@ setup(
     entry_points={
         "console_scripts": [
             "katana-curiosity = katana_curiosity.cli:main",
+            "curiosity_node = katana_curiosity.curiosity_node:main",
         ],
     },
 )

@@ -40,6 +40,7 @@ class Step:
     label: int
     margin_before: float
     chi_before: float
+    weights_before: np.ndarray | None = None  # only when the explorer records weights
 
 
 def first_unknown(bank: PredictorBank, setting: Setting | ShuffledSetting) -> Choice | None:
@@ -167,10 +168,16 @@ class Explorer:
     """Algorithm 1 in a loop: observe, query or plan, execute, learn."""
 
     def __init__(
-        self, world: World, bank: PredictorBank, strategy: Strategy, max_alternatives: int = 20
+        self,
+        world: World,
+        bank: PredictorBank,
+        strategy: Strategy,
+        max_alternatives: int = 20,
+        record_weights: bool = False,
     ) -> None:
         self.world, self.bank, self.strategy = world, bank, strategy
         self.max_alternatives = max_alternatives
+        self.record_weights = record_weights
         self.steps = 0
 
     def step(self) -> Step:
@@ -181,9 +188,10 @@ class Explorer:
         label, choice = self._execute(setting, choice)
         s, a = choice.state, choice.action
         margin, chi = float(self.bank.margin[s, a]), float(self.bank.chi[s, a])
+        weights = self.bank.weights(s) if self.record_weights and self.bank.slot[s] >= 0 else None
         self.bank.update(s, a, label)
         self.steps += 1
-        return Step(s, a, choice.mode, label, margin, chi)
+        return Step(s, a, choice.mode, label, margin, chi, weights)
 
     def _execute(self, setting: Setting | ShuffledSetting, choice: Choice) -> tuple[int, Choice]:
         try:
