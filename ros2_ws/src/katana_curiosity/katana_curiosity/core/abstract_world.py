@@ -52,6 +52,8 @@ class AbstractBlocksWorld:
         self.below = [-1] * n_blocks
         self.settings = 0
         self._last: Setting | ShuffledSetting | None = None
+        self._last_tops: list[int] = []
+        self._last_available: list[int] = [0]
 
     # -- representation --------------------------------------------------------------------
 
@@ -76,10 +78,15 @@ class AbstractBlocksWorld:
 
     def available_states(self) -> list[int]:
         """Table plus each top height that some other stack can supply a block for."""
-        tops = [j for j in range(self.n_blocks) if self.on_top[j]]
+        return self._available(self._tops())
+
+    def _tops(self) -> list[int]:
+        return [j for j, top in enumerate(self.on_top) if top]
+
+    def _available(self, tops: list[int]) -> list[int]:
         if len(tops) < 2:
             return [0]
-        return [0] + sorted({self.level[j] for j in tops})
+        return [0, *sorted({self.level[j] for j in tops})]
 
     def arrange(self, stacks: list[list[int]]) -> None:
         """Put the blocks in the given stacks (ids bottom first); every block exactly once."""
@@ -96,7 +103,9 @@ class AbstractBlocksWorld:
     # -- protocol --------------------------------------------------------------------------
 
     def observe(self) -> Setting | ShuffledSetting:
-        available = np.array(self.available_states())
+        self._last_tops = self._tops()
+        self._last_available = self._available(self._last_tops)
+        available = np.array(self._last_available)
         if self.shuffle_scan:
             self._last = ShuffledSetting(available, self.n_actions, self._rng)
         else:
@@ -110,13 +119,16 @@ class AbstractBlocksWorld:
             if self._last is None:
                 raise PlacementUnavailable("an instance index needs a current observed setting")
             state, action = int(self._last.states[index]), int(self._last.actions[index])
-        available = self._last.available if self._last is not None else self.available_states()
+        if self._last is not None:
+            tops, available = self._last_tops, self._last_available
+        else:
+            tops = self._tops()
+            available = self._available(tops)
         if state not in available:
             raise PlacementUnavailable(f"height {state} is not available in this setting")
         if not 0 <= action < self.n_actions:
             raise PlacementUnavailable(f"action {action} is not in [0, {self.n_actions})")
         rng = self._rng
-        tops = [j for j, top in enumerate(self.on_top) if top]
         if state == 0:
             target = -1
             movable = tops
