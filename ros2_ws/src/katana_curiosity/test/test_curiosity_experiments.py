@@ -139,12 +139,26 @@ def test_robot_report_summarises_a_log(tmp_path) -> None:
     from katana_curiosity.core.run_record import ExperienceLog
 
     log = ExperienceLog(tmp_path / "experience.jsonl")
-    script = [(0, 1, 1, "query"), (1, 6, 1, "query"), (2, 6, -1, "query"), (1, 1, -1, "plan"),
-              (2, 5, 1, "query")]
+    script = [
+        (0, 1, 1, "query"),
+        (1, 6, 1, "query"),
+        (2, 6, -1, "query"),
+        (1, 1, -1, "plan"),
+        (2, 5, 1, "query"),
+    ]
     for i, (state, action, label, mode) in enumerate(script):
-        log.append({"index": i, "state": state, "action": action, "action_index": action - 1,
-                    "label": label, "mode": mode, "wall_time": 100.0 + 2.0 * i,
-                    "stage_s": {"pick_place_s": 0.5 + i}})
+        log.append(
+            {
+                "index": i,
+                "state": state,
+                "action": action,
+                "action_index": action - 1,
+                "label": label,
+                "mode": mode,
+                "wall_time": 100.0 + 2.0 * i,
+                "stage_s": {"pick_place_s": 0.5 + i},
+            }
+        )
     summary = write_report(tmp_path)
     assert summary["experiments"] == 5 and summary["queries"] == 4 and summary["plans"] == 1
     assert summary["highest_stack"] == 3  # the stable placement on height 2

@@ -87,8 +87,9 @@ class FakeGraph(Node):
         goal_handle.succeed()
         if self.grasp_misses > 0:
             self.grasp_misses -= 1
-            return PickAndPlace.Result(success=False, error_code=PickAndPlace.Result.GRASP_MISSED,
-                                       message="grasp missed")
+            return PickAndPlace.Result(
+                success=False, error_code=PickAndPlace.Result.GRASP_MISSED, message="grasp missed"
+            )
         return PickAndPlace.Result(success=True, error_code=PickAndPlace.Result.SUCCESS)
 
     def reset(self, request, response):
@@ -102,8 +103,14 @@ class FakeGraph(Node):
 
 
 def params(run_dir, **extra):
-    values = {"run_dir": str(run_dir), "max_experiments": 8, "service_timeout_s": 2.0,
-              "blocks_timeout_s": 2.0, "action_timeout_s": 5.0, **extra}
+    values = {
+        "run_dir": str(run_dir),
+        "max_experiments": 8,
+        "service_timeout_s": 2.0,
+        "blocks_timeout_s": 2.0,
+        "action_timeout_s": 5.0,
+        **extra,
+    }
     return [Parameter(k, value=v) for k, v in values.items()]
 
 
@@ -112,8 +119,9 @@ def run_graph(run_dir, max_experiments: int, timeout_s: float = 30.0, **fake_kwa
     rclpy.init(context=context)
     executor = MultiThreadedExecutor(num_threads=4, context=context)
     fake = FakeGraph(context, **fake_kwargs)
-    node = CuriosityNode(context=context,
-                         parameter_overrides=params(run_dir, max_experiments=max_experiments))
+    node = CuriosityNode(
+        context=context, parameter_overrides=params(run_dir, max_experiments=max_experiments)
+    )
     states: list[LearnerState] = []
     listener = Node(f"listener_{uuid.uuid4().hex[:8]}", context=context)
     listener.create_subscription(LearnerState, "curiosity/learner_state", states.append, STATE_QOS)
@@ -184,8 +192,13 @@ def test_bad_instances_and_missed_grasps_do_not_stop_the_run(tmp_path) -> None:
 
 @pytest.mark.parametrize(
     ("name", "value", "match"),
-    [("strategy", "greedy", "strategy"), ("alpha", -1.0, "alpha"), ("theta", 1.5, "theta"),
-     ("max_height", 12, "max_height"), ("run_dir", "", "run_dir")],
+    [
+        ("strategy", "greedy", "strategy"),
+        ("alpha", -1.0, "alpha"),
+        ("theta", 1.5, "theta"),
+        ("max_height", 12, "max_height"),
+        ("run_dir", "", "run_dir"),
+    ],
 )
 def test_invalid_parameters_stop_the_node_with_the_parameter_named(tmp_path, name, value, match):
     context = rclpy.context.Context()

@@ -54,12 +54,20 @@ def model_figure(bank: PredictorBank, max_height: int, counts: np.ndarray, path:
     actions = np.arange(1, bank.n_actions + 1)
     for ax, h in zip(axes[0], heights, strict=True):
         margin, chi = bank.margin[h], bank.chi[h]
-        ax.fill_between(actions, margin - chi, margin + chi, color="lightsteelblue",
-                        label="margin +- chi")
+        ax.fill_between(
+            actions, margin - chi, margin + chi, color="lightsteelblue", label="margin +- chi"
+        )
         ax.plot(actions, margin, "b.-", label="learned margin")
         unknown = bank.unknown[h]
-        ax.plot(actions[unknown], margin[unknown], "o", mfc="none", mec="orange", ms=10,
-                label="still unknown")
+        ax.plot(
+            actions[unknown],
+            margin[unknown],
+            "o",
+            mfc="none",
+            mec="orange",
+            ms=10,
+            label="still unknown",
+        )
         for a, n in zip(actions, counts[h], strict=True):
             ax.annotate(str(int(n)), (a, -1.45), ha="center", fontsize=7, color="grey")
         ax.axhline(0, color="grey", lw=0.5)
@@ -94,13 +102,23 @@ def experience_figure(records: list[dict], max_height: int, path: Path) -> None:
     plt.close(fig)
 
 
-def write_report(run_dir: Path, n_actions: int = 6, max_height: int = 3, alpha: float = 1.0,
-                 theta: float = 0.1, extra: dict | None = None) -> dict:
+def write_report(
+    run_dir: Path,
+    n_actions: int = 6,
+    max_height: int = 3,
+    alpha: float = 1.0,
+    theta: float = 0.1,
+    extra: dict | None = None,
+) -> dict:
     """summary.json, model.png and experience.png in `run_dir`, from its experience log."""
     run_dir = Path(run_dir)
     records = ExperienceLog(run_dir / LOG_NAME).records
-    bank = PredictorBank(range(max_height + 1), one_hot_with_bias(n_actions),
-                         QueryRule(alpha, theta), n_states=max_height + 2)
+    bank = PredictorBank(
+        range(max_height + 1),
+        one_hot_with_bias(n_actions),
+        QueryRule(alpha, theta),
+        n_states=max_height + 2,
+    )
     replay(bank, records)
     summary = summarise_run(records, n_actions, max_height)
     summary.update(extra or {})
