@@ -1,0 +1,116 @@
+"""High-level calls to the Katana controller over one Transport (ROS-free)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from . import protocol as p
+from .transport import Transport
+
+
+class KatanaClient:
+    """One method per controller command; replies decoded, refusals raised as ControllerError."""
+
+    def __init__(self, transport: Transport) -> None:
+        self.transport = transport
+
+    def _call(self, command: p.Command) -> bytes:
+        return self.transport.request(command.payload, command.reply_len)
+
+    # ------------------------------------------------------------------ link
+    def connect(self) -> None:
+        self.transport.open()
+
+    def close(self) -> None:
+        self.transport.close()
+
+    # ------------------------------------------------------------------ identification
+    def echo(self) -> bool:
+        return p.decode_echo(self._call(p.echo()))
+
+    def master_version(self) -> tuple[int, int]:
+        return p.decode_master_version(self._call(p.master_version()))
+
+    def identification(self) -> str:
+        return p.decode_identification(self._call(p.identification()))
+
+    # ------------------------------------------------------------------ state
+    def read_positions(self) -> list[int]:
+        """Encoder positions of motors 1..6."""
+        return p.decode_positions(self._call(p.read_positions()))
+
+    def read_status(self) -> list[int]:
+        """Status flags of motors 1..6 (protocol.STATUS_*)."""
+        return p.decode_status(self._call(p.read_status()))
+
+    def read_motor(self, motor: int) -> p.MotorState:
+        return p.decode_motor(self._call(p.read_motor(motor)))
+
+    def read_gripper_sensors(self) -> list[int]:
+        return p.decode_gripper_sensors(self._call(p.gripper_sensors()))
+
+    # ------------------------------------------------------------------ motor commands
+    def move_motor(self, motor: int, encoder: int) -> None:
+        self._call(p.motor_command(motor, p.FLAG_MOVE, encoder))
+
+    def hold_motor(self, motor: int, encoder: int) -> None:
+        """Hold at ``encoder``; also clears a collision stop (as the vendor's unblock does)."""
+        self._call(p.motor_command(motor, p.FLAG_HOLD, encoder))
+
+    def motor_off(self, motor: int) -> None:
+        self._call(p.motor_command(motor, p.FLAG_OFF))
+
+    def motors_off(self) -> None:
+        self._call(p.motor_command(p.ALL_MOTORS, p.FLAG_OFF))
+
+    def hold_all(self, encoders: Sequence[int]) -> None:
+        """Every motor holds where ``encoders`` says (freeze: stop now)."""
+        for motor, enc in enumerate(encoders, start=1):
+            self.hold_motor(motor, int(enc))
+
+    def calibrate(self) -> None:
+        """Start calibrating all motors; poll read_status until none is calibrating."""
+        self._call(p.calibrate_all())
+
+    def flush_buffers(self) -> None:
+        self._call(p.motor_command(p.ALL_MOTORS, p.FLAG_FLUSH))
+
+    def set_encoder(self, motor: int, encoder: int) -> None:
+        self._call(p.motor_command(motor, p.FLAG_HOLD, encoder, set_encoder=True))
+
+    def set_speed_limit(self, motor: int, positive: int, negative: int | None = None) -> None:
+        """Speed limits in encoders per 10 ms (firmware maximum 180)."""
+        neg = positive if negative is None else negative
+        self._call(p.set_limit(motor, p.SUB_SPEED_LIMIT, positive, neg))
+
+    def set_acceleration_limit(self, motor: int, acceleration: int) -> None:
+        """Acceleration limit in the firmware's unit (unconfirmed; 1 or 2 are usual)."""
+        self._call(p.set_limit(motor, p.SUB_ACCEL_LIMIT, acceleration))
+
+    def collision_detection(self, on: bool) -> None:
+        self._call(p.collision_detection(on))
+
+    # ------------------------------------------------------------------ splines
+    def send_spline(self, motor: int, segment: p.SplineSegment) -> None:
+        """G: queue one motor's segment; start_splines runs what was queued."""
+        self._call(p.spline_one(motor, segment))
+
+    def start_splines(self, exact: bool = False, more: bool = False) -> None:
+        self._call(p.start_splines(exact=exact, more=more))
+
+    def send_spline_all(
+        self, segments: Sequence[p.SplineSegment], activity: int, exact: bool = False
+    ) -> None:
+        """H: one segment for all six motors; ``activity`` is protocol.ACTIVITY_*."""
+        self._call(p.spline_all(list(segments), activity, exact))
+
+    # ------------------------------------------------------------------ gripper
+    def gripper(self, encoder: int) -> None:
+        """Move the gripper motor (6) to ``encoder``."""
+        self.move_motor(6, encoder)
+
+    # ------------------------------------------------------------------ errors
+    def read_last_error(self) -> p.ControllerError | None:
+        """The controller's last error via the raw 0xC1 request (unconfirmed outside a 0xC0)."""
+        err = self.transport.query_error()
+        return err if isinstance(err, p.ControllerError) else None

@@ -1,0 +1,156 @@
+"""Encoder <-> joint-angle conversion of the Katana, per variant (shared/KATANA.md).
+
+theta_kni = angleOffset - (enc - encoderOffset) * 2 pi / (ticksPerRev * dir); the URDF angle is
+theta_kni - pi for motors 1, 3, 4, 5 and theta_kni for motor 2, wrapped to [-pi, pi). This
+reproduces the URDF's joint limits. The gripper (motor 6) is linear between 12240 (-0.44 rad,
+closed) and 30770 (0.30 rad, open). Angles are the URDF's (what joint_states carries).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .protocol import TICK_S
+
+VARIANTS = ("6M180", "6M90A", "6M90B")
+KATANA_TYPES = (300, 400, 450)
+
+ARM_JOINTS = (
+    "katana_motor1_pan_joint",
+    "katana_motor2_lift_joint",
+    "katana_motor3_lift_joint",
+    "katana_motor4_lift_joint",
+    "katana_motor5_wrist_roll_joint",
+)
+FINGER_JOINTS = ("katana_r_finger_joint", "katana_l_finger_joint")
+ALL_JOINTS = ARM_JOINTS + FINGER_JOINTS
+
+# Maximum joint speeds, rad/s (motor 3 as measured on the arm, half the nominal); gripper last.
+MAX_SPEED = (2.209, 1.191, 1.191, 2.209, 2.209, 0.719)
+
+GRIPPER_OPEN_ENC, GRIPPER_OPEN_RAD = 30770, 0.30
+GRIPPER_CLOSED_ENC, GRIPPER_CLOSED_RAD = 12240, -0.44
+
+
+@dataclass(frozen=True)
+class MotorParams:
+    ticks_per_rev: int
+    encoder_offset: int
+    angle_offset_deg: float
+    direction: int  # +1 or -1
+    angle_range_deg: float
+    urdf_shift: float  # theta_urdf = theta_kni - urdf_shift
+
+    @property
+    def encoder_stop(self) -> int:
+        """Encoder at the far end of the range (KNI truncates towards zero)."""
+        span = int(self.ticks_per_rev * self.angle_range_deg / 360.0)
+        return self.encoder_offset - self.direction * span
+
+    @property
+    def encoder_range(self) -> tuple[int, int]:
+        a, b = self.encoder_offset, self.encoder_stop
+        return (min(a, b), max(a, b))
+
+    @property
+    def enc_per_rad(self) -> float:
+        """d enc / d theta (signed)."""
+        return -self.ticks_per_rev * self.direction / (2.0 * math.pi)
+
+
+def _wrap(angle: float) -> float:
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+class EncoderModel:
+    """Conversions for one variant; motors are numbered 1..6 as on the wire."""
+
+    def __init__(self, variant: str = "6M180") -> None:
+        if variant not in VARIANTS:
+            raise ValueError(f"variant '{variant}' not one of {', '.join(VARIANTS)}")
+        self.variant = variant
+        m5_offset = -171.5 if variant == "6M90B" else 8.5
+        pi = math.pi
+        self.motors = (
+            MotorParams(51200, 31000, 6.65, 1, 339.0, pi),
+            MotorParams(94976, -31000, 124.25, 1, -132.0, 0.0),
+            MotorParams(47488, -31000, 52.7, -1, 245.0, pi),
+            MotorParams(51200, 31000, 63.5, 1, 224.0, pi),
+            MotorParams(51200, 31000, m5_offset, 1, 336.0, pi),
+        )
+
+    # ------------------------------------------------------------------ arm motors 1..5
+    def params(self, motor: int) -> MotorParams:
+        if not 1 <= motor <= 5:
+            raise ValueError(f"arm motor {motor} outside 1..5")
+        return self.motors[motor - 1]
+
+    def encoder_to_angle(self, motor: int, enc: float) -> float:
+        m = self.params(motor)
+        theta_kni = math.radians(m.angle_offset_deg) + (enc - m.encoder_offset) / m.enc_per_rad
+        return _wrap(theta_kni - m.urdf_shift)
+
+    def angle_to_encoder(self, motor: int, angle: float) -> float:
+        """Encoder value of ``angle``; of the 2 pi branches, the one in (or nearest) the range."""
+        m = self.params(motor)
+        lo, hi = m.encoder_range
+        best, best_dist = 0.0, math.inf
+        for k in (-1, 0, 1, 2):
+            theta_kni = angle + m.urdf_shift + 2.0 * math.pi * k
+            enc = m.encoder_offset + (theta_kni - math.radians(m.angle_offset_deg)) * m.enc_per_rad
+            dist = max(lo - enc, enc - hi, 0.0)
+            if dist < best_dist:
+                best, best_dist = enc, dist
+        return best
+
+    def encoder_range(self, motor: int) -> tuple[int, int]:
+        return self.params(motor).encoder_range
+
+    def joint_limits(self, motor: int) -> tuple[float, float]:
+        """(lower, upper) in rad; upper may exceed pi when the range crosses the wrap (6M90B)."""
+        lo_enc, hi_enc = self.encoder_range(motor)
+        a = self.encoder_to_angle(motor, lo_enc)
+        b = self.encoder_to_angle(motor, hi_enc)
+        lower, upper = min(a, b), max(a, b)
+        span = abs(hi_enc - lo_enc) / abs(self.params(motor).enc_per_rad)
+        if abs((upper - lower) - span) > 1e-6:  # the range wraps around +-pi
+            lower, upper = upper, upper + span
+        return lower, upper
+
+    def speed_to_encoder(self, motor: int, rad_per_s: float) -> float:
+        """Joint speed in encoders per 10 ms tick (signed)."""
+        return rad_per_s * self.params(motor).enc_per_rad * TICK_S
+
+    def speed_limit_enc(self, motor: int) -> float:
+        """The joint's speed limit in encoders per tick (positive)."""
+        return abs(self.speed_to_encoder(motor, MAX_SPEED[motor - 1]))
+
+    # ------------------------------------------------------------------ gripper, motor 6
+    @staticmethod
+    def gripper_encoder_to_angle(enc: float) -> float:
+        frac = (enc - GRIPPER_CLOSED_ENC) / (GRIPPER_OPEN_ENC - GRIPPER_CLOSED_ENC)
+        return GRIPPER_CLOSED_RAD + frac * (GRIPPER_OPEN_RAD - GRIPPER_CLOSED_RAD)
+
+    @staticmethod
+    def gripper_angle_to_encoder(angle: float) -> float:
+        frac = (angle - GRIPPER_CLOSED_RAD) / (GRIPPER_OPEN_RAD - GRIPPER_CLOSED_RAD)
+        return GRIPPER_CLOSED_ENC + frac * (GRIPPER_OPEN_ENC - GRIPPER_CLOSED_ENC)
+
+    @staticmethod
+    def gripper_limits() -> tuple[float, float]:
+        return GRIPPER_CLOSED_RAD, GRIPPER_OPEN_RAD
+
+    @staticmethod
+    def gripper_speed_limit_enc() -> float:
+        enc_per_rad = (GRIPPER_OPEN_ENC - GRIPPER_CLOSED_ENC) / (
+            GRIPPER_OPEN_RAD - GRIPPER_CLOSED_RAD
+        )
+        return MAX_SPEED[5] * enc_per_rad * TICK_S
+
+    # ------------------------------------------------------------------ all motors
+    def encoders_to_joint_positions(self, encoders: list[int] | tuple[int, ...]) -> list[float]:
+        """Six encoder values -> the seven joint_states positions (fingers equal)."""
+        arm = [self.encoder_to_angle(i + 1, encoders[i]) for i in range(5)]
+        finger = self.gripper_encoder_to_angle(encoders[5])
+        return arm + [finger, finger]

@@ -1,0 +1,269 @@
+"""Joint trajectories -> Katana spline segments, checked against joint and speed limits.
+
+The controller runs one cubic per motor and segment, pos(t) = p0 + p1/64 t + p2/1024 t^2 +
+p3/32768 t^3 with t in 10 ms ticks and 16-bit coefficients. Rounding p2 and p3 costs
+0.5/1024 t^2 and 0.5/32768 t^3 encoders, so segments are kept short (0.5 s at most: under
+4 encoders of error); segments shorter than 0.2 s would overflow p3 at full speed, so knots
+closer than that are merged. Knot velocities come from the goal or, when it has none, are
+zero (the arm stops at every point, as the simulation's controller does, so one goal moves
+both backends alike and never overshoots between points); the arm starts and ends at rest.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicHermiteSpline
+
+from .encoders import ARM_JOINTS, EncoderModel
+from .protocol import INT16_MAX, INT16_MIN, SPLINE_SCALE, TICK_S, SplineSegment
+
+MIN_SEGMENT_TICKS = 20
+MAX_SEGMENT_TICKS = 50
+LIMIT_MARGIN_ENC = 20  # tolerated excursion beyond the encoder range (about 0.15 deg)
+START_TOLERANCE_RAD = 0.05  # a point at t=0 must be this close to where the arm is
+
+
+class TrajectoryError(ValueError):
+    """The goal cannot be executed as given (limits, speeds, timing); the text says why."""
+
+
+def cubic_speed_max(c1: float, c2: float, c3: float, duration: float) -> float:
+    """Largest |c1 + 2 c2 t + 3 c3 t^2| over t in [0, duration]."""
+    candidates = [0.0, float(duration)]
+    if c3 != 0.0:
+        t_star = -c2 / (3.0 * c3)
+        if 0.0 < t_star < duration:
+            candidates.append(t_star)
+    return max(abs(c1 + 2.0 * c2 * t + 3.0 * c3 * t * t) for t in candidates)
+
+
+def cubic_extremes(c: Sequence[float], duration: float) -> tuple[float, float]:
+    """(min, max) of c0 + c1 t + c2 t^2 + c3 t^3 over t in [0, duration]."""
+    c0, c1, c2, c3 = c
+    ts = [0.0, float(duration)]
+    roots = np.roots([3.0 * c3, 2.0 * c2, c1]) if (c3 or c2) else []
+    ts += [float(r.real) for r in roots if abs(r.imag) < 1e-12 and 0.0 < r.real < duration]
+    values = [c0 + c1 * t + c2 * t * t + c3 * t**3 for t in ts]
+    return min(values), max(values)
+
+
+def hermite_coefficients(
+    e0: float, e1: float, v0: float, v1: float, ticks: int
+) -> tuple[float, float, float, float]:
+    """Cubic through (0, e0) and (ticks, e1) with slopes v0, v1 (encoders, encoders per tick)."""
+    t = float(ticks)
+    delta = e1 - e0
+    return (e0, v0, (3.0 * delta / t - 2.0 * v0 - v1) / t, (-2.0 * delta / t + v0 + v1) / (t * t))
+
+
+def quantize(c: Sequence[float], target: float, ticks: int) -> SplineSegment:
+    """Firmware segment (16-bit scaled coefficients) of the cubic ``c``."""
+    p = [int(round(ci * s)) for ci, s in zip(c, SPLINE_SCALE, strict=True)]
+    for value in p:
+        if not INT16_MIN <= value <= INT16_MAX:
+            raise TrajectoryError(
+                "a spline coefficient overflows 16 bits: the motion is too fast for its "
+                "duration; give the trajectory more time"
+            )
+    return SplineSegment(int(ticks), int(round(target)), *p)
+
+
+def hermite_segment(e0: float, e1: float, v0: float, v1: float, ticks: int) -> SplineSegment:
+    """Firmware segment from end values and slopes (encoders, encoders per tick)."""
+    return quantize(hermite_coefficients(e0, e1, v0, v1, ticks), e1, ticks)
+
+
+def hold_segment(enc: int, ticks: int) -> SplineSegment:
+    """A segment that keeps a motor where it is (the gripper during arm trajectories)."""
+    return SplineSegment(ticks, int(enc), int(enc), 0, 0, 0)
+
+
+def evaluate(segment: SplineSegment, tick: float) -> float:
+    """Position of a firmware segment at ``tick`` (clamped to the segment; target at the end)."""
+    if tick >= segment.duration:
+        return float(segment.target)
+    c0, c1, c2, c3 = segment.coefficients()
+    t = max(0.0, tick)
+    return c0 + c1 * t + c2 * t * t + c3 * t**3
+
+
+@dataclass
+class SplinePlan:
+    """The segments to send (per segment: motors 1..5) and the timing they imply."""
+
+    segments: list[list[SplineSegment]]
+    start_ticks: list[int]  # tick at which each segment starts, from the trajectory start
+    model: EncoderModel
+
+    @property
+    def total_ticks(self) -> int:
+        return self.start_ticks[-1] + self.segments[-1][0].duration if self.segments else 0
+
+    @property
+    def duration_s(self) -> float:
+        return self.total_ticks * TICK_S
+
+    def encoders_at(self, t_s: float) -> list[float]:
+        """Commanded encoder positions of motors 1..5 at ``t_s`` seconds from the start."""
+        tick = t_s / TICK_S
+        idx = int(np.searchsorted(self.start_ticks, tick, side="right")) - 1
+        idx = min(max(idx, 0), len(self.segments) - 1)
+        return [evaluate(s, tick - self.start_ticks[idx]) for s in self.segments[idx]]
+
+    def desired_at(self, t_s: float) -> list[float]:
+        """Commanded joint angles (rad, URDF convention) at ``t_s`` seconds from the start."""
+        enc = self.encoders_at(t_s)
+        return [self.model.encoder_to_angle(i + 1, e) for i, e in enumerate(enc)]
+
+    def final_angles(self) -> list[float]:
+        return [
+            self.model.encoder_to_angle(i + 1, s.target) for i, s in enumerate(self.segments[-1])
+        ]
+
+
+def _select_knots(ticks: np.ndarray, min_ticks: int) -> list[int]:
+    """Indices of knots to keep so that kept knots are at least ``min_ticks`` apart."""
+    keep = [0]
+    for i in range(1, len(ticks)):
+        if ticks[i] - ticks[keep[-1]] >= min_ticks:
+            keep.append(i)
+    last = len(ticks) - 1
+    if keep[-1] != last:  # the goal must be reached exactly: keep the last knot
+        if len(keep) > 1:
+            keep[-1] = last
+        else:
+            keep.append(last)
+    return keep
+
+
+def plan_trajectory(
+    model: EncoderModel,
+    start_encoders: Sequence[int],
+    times_s: Sequence[float],
+    positions: Sequence[Sequence[float]],
+    velocities: Sequence[Sequence[float]] | None = None,
+    speed_scale: float = 1.0,
+    min_segment_ticks: int = MIN_SEGMENT_TICKS,
+    max_segment_ticks: int = MAX_SEGMENT_TICKS,
+) -> SplinePlan:
+    """Plan spline segments for motors 1..5 from the arm's encoders and a joint trajectory.
+
+    ``positions`` rows are joint angles in ARM_JOINTS order, at ``times_s`` from the start.
+    Raises TrajectoryError naming the joint and the limit when the goal cannot be run.
+    """
+    times = np.asarray(times_s, dtype=float)
+    q = np.asarray(positions, dtype=float)
+    if times.ndim != 1 or len(times) == 0:
+        raise TrajectoryError("the trajectory has no points")
+    if q.shape != (len(times), 5):
+        raise TrajectoryError(f"expected {len(times)} x 5 positions, got shape {q.shape}")
+    if not (np.all(np.isfinite(times)) and np.all(np.isfinite(q))):
+        raise TrajectoryError("the trajectory contains NaN or infinite values")
+    if times[0] < 0.0 or np.any(np.diff(times) <= 0.0):
+        raise TrajectoryError("time_from_start must be non-negative and strictly increasing")
+    v = None
+    if velocities is not None and len(velocities) > 0:
+        v = np.asarray(velocities, dtype=float)
+        if v.shape != q.shape or not np.all(np.isfinite(v)):
+            raise TrajectoryError("velocities must be finite and match the positions")
+
+    # Knots in encoder space, checked against the ranges.
+    enc = np.empty_like(q)
+    for j in range(5):
+        lo, hi = model.encoder_range(j + 1)
+        lo_rad, hi_rad = model.joint_limits(j + 1)
+        for k in range(len(times)):
+            e = model.angle_to_encoder(j + 1, q[k, j])
+            if not lo - LIMIT_MARGIN_ENC <= e <= hi + LIMIT_MARGIN_ENC:
+                raise TrajectoryError(
+                    f"point {k}: {ARM_JOINTS[j]} = {q[k, j]:.4f} rad is outside its limits "
+                    f"[{lo_rad:.4f}, {hi_rad:.4f}]"
+                )
+            enc[k, j] = e
+    enc_per_tick = None
+    if v is not None:
+        enc_per_tick = np.array(
+            [[model.speed_to_encoder(j + 1, v[k, j]) for j in range(5)] for k in range(len(times))]
+        )
+
+    start = np.asarray(start_encoders[:5], dtype=float)
+    ticks = np.round(times / TICK_S)
+    if ticks[0] <= 0.0:  # a point at t=0 stands for the current position
+        gap = [
+            abs(model.encoder_to_angle(j + 1, enc[0, j]) - model.encoder_to_angle(j + 1, start[j]))
+            for j in range(5)
+        ]
+        gap = [min(g, 2 * math.pi - g) for g in gap]
+        if max(gap) > START_TOLERANCE_RAD:
+            j = int(np.argmax(gap))
+            raise TrajectoryError(
+                f"the point at t=0 puts {ARM_JOINTS[j]} {gap[j]:.3f} rad from where the arm is"
+            )
+        enc[0] = start
+        if enc_per_tick is not None:
+            enc_per_tick[0] = 0.0
+    else:
+        enc = np.vstack([start, enc])
+        ticks = np.concatenate([[0.0], ticks])
+        if enc_per_tick is not None:
+            enc_per_tick = np.vstack([np.zeros(5), enc_per_tick])
+    if len(ticks) == 1:  # only "be where you are": hold for one short segment
+        ticks = np.array([0.0, float(min_segment_ticks)])
+        enc = np.vstack([start, start])
+        enc_per_tick = None
+    if np.any(np.diff(ticks) <= 0.0):
+        raise TrajectoryError("trajectory points closer than 10 ms apart")
+
+    if enc_per_tick is None:
+        enc_per_tick = np.zeros_like(enc)
+    enc_per_tick[0] = 0.0
+    enc_per_tick[-1] = 0.0
+    curve = CubicHermiteSpline(ticks, enc, enc_per_tick, axis=0)
+
+    keep = _select_knots(ticks, min_segment_ticks)
+    knot_ticks = [int(ticks[i]) for i in keep]
+    if knot_ticks[-1] - knot_ticks[0] < min_segment_ticks:  # a very short goal: slow it down
+        stretch = min_segment_ticks / max(knot_ticks[-1] - knot_ticks[0], 1)
+        scaled = CubicHermiteSpline(ticks * stretch, enc, enc_per_tick / stretch, axis=0)
+        curve, knot_ticks = scaled, [0, min_segment_ticks]
+
+    bounds: list[int] = [knot_ticks[0]]
+    for a, b in zip(knot_ticks[:-1], knot_ticks[1:], strict=True):
+        n = math.ceil((b - a) / max_segment_ticks)
+        bounds += [a + round((b - a) * (i + 1) / n) for i in range(n)]
+
+    limits = [model.speed_limit_enc(j + 1) * speed_scale for j in range(5)]
+    deriv = curve.derivative()
+    segments: list[list[SplineSegment]] = []
+    prev = [int(round(e)) for e in start]
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        e1 = curve(b)
+        v0, v1 = deriv(a), deriv(b)
+        row = []
+        for j in range(5):
+            ticks_j = b - a
+            c = hermite_coefficients(prev[j], float(e1[j]), float(v0[j]), float(v1[j]), ticks_j)
+            speed = cubic_speed_max(c[1], c[2], c[3], ticks_j)
+            if speed > limits[j] * (1.0 + 1e-6) + 1e-9:
+                per_rad = abs(model.speed_to_encoder(j + 1, 1.0))
+                raise TrajectoryError(
+                    f"{ARM_JOINTS[j]} would move at {speed / per_rad:.3f} rad/s, above its "
+                    f"limit of {limits[j] / per_rad:.3f} rad/s; give the trajectory more time"
+                )
+            lo, hi = model.encoder_range(j + 1)
+            low, high = cubic_extremes(c, ticks_j)
+            if low < lo - LIMIT_MARGIN_ENC or high > hi + LIMIT_MARGIN_ENC:
+                raise TrajectoryError(
+                    f"{ARM_JOINTS[j]} would overshoot its limits between trajectory points"
+                )
+            seg = quantize(c, float(e1[j]), ticks_j)
+            row.append(seg)
+            prev[j] = seg.target
+        segments.append(row)
+    return SplinePlan(
+        segments=segments, start_ticks=[b - bounds[0] for b in bounds[:-1]], model=model
+    )

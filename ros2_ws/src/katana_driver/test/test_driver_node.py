@@ -1,0 +1,291 @@
+"""katana_driver_node in-process against the emulator: the sim_node interfaces, refusals, faults."""
+
+import itertools
+import time
+
+import pytest
+import rclpy
+from builtin_interfaces.msg import Duration
+from katana_driver.core import protocol as p
+from katana_driver.core.encoders import ALL_JOINTS, ARM_JOINTS
+from katana_driver.katana_driver_node import KatanaDriverNode
+from katana_driver.params import ParameterError
+from katana_interfaces.action import FollowJointTrajectory, GripperCommand
+from katana_interfaces.msg import JointTolerance
+from katana_interfaces.srv import ResetWorld, SetMotors
+from rclpy.action import ActionClient
+from rclpy.action.client import GoalStatus
+from rclpy.context import Context
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectoryPoint
+
+pytestmark = pytest.mark.timeout(90)
+_ids = itertools.count()
+
+
+class Graph:
+    """Driver node + a client node on one MultiThreadedExecutor, in their own Context."""
+
+    def __init__(self, emulator, **params):
+        self.emulator = emulator
+        self.ctx = Context()
+        rclpy.init(context=self.ctx)
+        n = next(_ids)
+        host, port = emulator.address
+        overrides = {"host": host, "port": port, "reconnect_period": 0.2}
+        overrides.update(params)
+        self.driver = KatanaDriverNode(
+            node_name=f"katana_driver_test_{n}",
+            context=self.ctx,
+            parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()],
+        )
+        self.client = Node(f"driver_test_client_{n}", context=self.ctx)
+        self.executor = MultiThreadedExecutor(num_threads=4, context=self.ctx)
+        self.executor.add_node(self.driver)
+        self.executor.add_node(self.client)
+        self.states: list[JointState] = []
+        self.client.create_subscription(JointState, "joint_states", self.states.append, 10)
+        self.arm = ActionClient(
+            self.client, FollowJointTrajectory, "arm_controller/follow_joint_trajectory"
+        )
+        self.gripper = ActionClient(
+            self.client, GripperCommand, "gripper_controller/gripper_command"
+        )
+        base = f"katana_driver_test_{n}"
+        self.set_motors = self.client.create_client(SetMotors, f"{base}/set_motors")
+        self.reset_world = self.client.create_client(ResetWorld, f"{base}/reset_world")
+
+    def spin_until(self, predicate, limit_s=20.0):
+        """Spin in slices of at most 50 ms until ``predicate`` holds or ``limit_s`` passed."""
+        deadline = time.monotonic() + limit_s
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            self.executor.spin_once(timeout_sec=0.05)
+        return predicate()
+
+    def ready(self):
+        assert self.spin_until(lambda: self.driver.worker.ready and len(self.states) > 2)
+        assert self.spin_until(self.arm.server_is_ready)
+        assert self.spin_until(self.gripper.server_is_ready)
+
+    def run_goal(self, client, goal, limit_s=20.0):
+        sent = client.send_goal_async(goal)
+        assert self.spin_until(sent.done)
+        handle = sent.result()
+        assert handle.accepted
+        result = handle.get_result_async()
+        assert self.spin_until(result.done, limit_s)
+        return result.result()
+
+    def call(self, client, request):
+        assert self.spin_until(client.service_is_ready)
+        future = client.call_async(request)
+        assert self.spin_until(future.done)
+        return future.result()
+
+    def close(self):
+        self.executor.shutdown()
+        self.driver.destroy_node()
+        self.client.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
+@pytest.fixture
+def graph(make_emulator):
+    made = []
+
+    def make(emulator=None, **params):
+        g = Graph(emulator or make_emulator(), **params)
+        made.append(g)
+        return g
+
+    yield make
+    for g in made:
+        g.close()
+
+
+def trajectory_goal(points, names=ARM_JOINTS):
+    goal = FollowJointTrajectory.Goal()
+    goal.trajectory.joint_names = list(names)
+    for t, q in points:
+        sec = int(t)
+        goal.trajectory.points.append(
+            JointTrajectoryPoint(
+                positions=list(q), time_from_start=Duration(sec=sec, nanosec=int((t - sec) * 1e9))
+            )
+        )
+    return goal
+
+
+def gripper_goal(position):
+    goal = GripperCommand.Goal()
+    goal.command.position = position
+    return goal
+
+
+def test_joint_states_carry_seven_joints(graph):
+    g = graph()
+    g.ready()
+    msg = g.states[-1]
+    assert list(msg.name) == list(ALL_JOINTS)
+    assert msg.position[5] == msg.position[6]
+    assert msg.position[0] == pytest.approx(-3.025528, abs=1e-5)  # M1 at its calibration stop
+
+
+def test_follows_a_trajectory_in_any_joint_order(graph):
+    g = graph()
+    g.ready()
+    names = list(reversed(ARM_JOINTS))
+    target = [-2.5, 1.8, -1.8, -1.5, -2.5]
+    goal = trajectory_goal([(1.2, list(reversed(target)))], names)
+    feedback_seen = []
+    sent = g.arm.send_goal_async(goal, feedback_callback=feedback_seen.append)
+    assert g.spin_until(sent.done)
+    result = sent.result().get_result_async()
+    assert g.spin_until(result.done)
+    res = result.result()
+    assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.error_string
+    assert res.result.error_code == FollowJointTrajectory.Result.SUCCESSFUL
+    assert feedback_seen
+    assert g.spin_until(lambda: g.states[-1].position[:5] == pytest.approx(target, abs=2e-3))
+
+
+@pytest.mark.parametrize(
+    ("points", "names", "code", "text"),
+    [
+        ([(1.0, [-2.5, 3.0, -1.8, -1.5, -2.5])], ARM_JOINTS, -1, "outside its limits"),
+        ([(0.3, [0.0, 1.8, -1.8, -1.5, -2.5])], ARM_JOINTS, -1, "rad/s"),
+        ([(1.0, [0.0] * 5)], ("a", "b", "c", "d", "e"), -2, "five arm joints"),
+        ([], ARM_JOINTS, -1, "no points"),
+    ],
+)
+def test_refuses_goals_it_cannot_run(graph, points, names, code, text):
+    g = graph()
+    g.ready()
+    res = g.run_goal(g.arm, trajectory_goal(points, names))
+    assert res.status == GoalStatus.STATUS_ABORTED
+    assert res.result.error_code == code
+    assert text in res.result.error_string
+    assert g.driver.worker.state.status[:5] == [p.STATUS_HOLDING] * 5  # nothing moved
+
+
+def test_goal_tolerance_from_the_goal_is_used(graph):
+    g = graph()
+    g.ready()
+    goal = trajectory_goal([(1.0, [-2.7, 2.0, -2.0, -1.8, -2.7])])
+    goal.goal_tolerance = [JointTolerance(name=ARM_JOINTS[0], position=0.05)]
+    assert g.run_goal(g.arm, goal).status == GoalStatus.STATUS_SUCCEEDED
+
+
+def test_gripper_opens_closes_and_stalls_on_a_block(graph):
+    g = graph()
+    g.ready()
+    res = g.run_goal(g.gripper, gripper_goal(-0.3))
+    assert res.status == GoalStatus.STATUS_SUCCEEDED and res.result.reached_goal
+    assert res.result.position == pytest.approx(-0.3, abs=0.01)
+    res = g.run_goal(g.gripper, gripper_goal(0.3))
+    assert res.result.reached_goal and res.result.position == pytest.approx(0.3, abs=0.01)
+    g.emulator.model.gripper_stall_at = 24000  # a block between the fingers
+    res = g.run_goal(g.gripper, gripper_goal(-0.44))
+    assert res.status == GoalStatus.STATUS_SUCCEEDED
+    assert res.result.stalled and not res.result.reached_goal
+    assert res.result.position == pytest.approx(
+        g.driver.model.gripper_encoder_to_angle(24000), abs=0.01
+    )
+    res = g.run_goal(g.gripper, gripper_goal(0.9))
+    assert res.status == GoalStatus.STATUS_ABORTED
+
+
+def test_collision_aborts_with_the_controllers_message(graph):
+    g = graph()
+    g.ready()
+    goal = trajectory_goal([(3.0, [-1.5, 1.2, -1.0, -0.5, -1.5])])
+    sent = g.arm.send_goal_async(goal)
+    assert g.spin_until(sent.done)
+    result = sent.result().get_result_async()
+    assert g.spin_until(lambda: g.driver.worker.state.status[0] == p.STATUS_MOVING)
+    assert g.emulator.model.inject_collision(2)
+    assert g.spin_until(result.done)
+    res = result.result()
+    assert res.status == GoalStatus.STATUS_ABORTED
+    assert "Collision on axis 2" in res.result.error_string
+    # The next goal unblocks the motors and runs.
+    res = g.run_goal(g.arm, trajectory_goal([(2.0, [-2.5, 1.8, -1.8, -1.5, -2.5])]))
+    assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.error_string
+
+
+def test_cancel_stops_the_arm(graph):
+    g = graph()
+    g.ready()
+    sent = g.arm.send_goal_async(trajectory_goal([(3.0, [-1.5, 1.2, -1.0, -0.5, -1.5])]))
+    assert g.spin_until(sent.done)
+    handle = sent.result()
+    assert g.spin_until(lambda: g.driver.worker.state.status[0] == p.STATUS_MOVING)
+    cancel = handle.cancel_goal_async()
+    assert g.spin_until(cancel.done)
+    result = handle.get_result_async()
+    assert g.spin_until(result.done)
+    assert result.result().status == GoalStatus.STATUS_CANCELED
+    assert g.spin_until(lambda: g.emulator.model.statuses()[0] == p.STATUS_HOLDING)
+
+
+def test_services_motors_and_reset(graph):
+    g = graph()
+    g.ready()
+    reply = g.call(g.reset_world, ResetWorld.Request(seed=-1))
+    assert not reply.success and "operator" in reply.message
+    reply = g.call(g.set_motors, SetMotors.Request(enable=False))
+    assert reply.success
+    assert g.emulator.model.statuses() == [p.STATUS_OFF] * 6
+    reply = g.call(g.set_motors, SetMotors.Request(enable=True))
+    assert reply.success
+    assert g.emulator.model.statuses() == [p.STATUS_HOLDING] * 6
+
+
+def test_lost_connection_is_reported_and_recovered(graph):
+    g = graph()
+    g.ready()
+    g.emulator.drop_connection()
+    assert g.spin_until(lambda: g.driver.worker.link_losses == 1)
+    assert g.spin_until(lambda: g.driver.worker.ready)
+    count = len(g.states)
+    assert g.spin_until(lambda: len(g.states) > count + 5)
+
+
+def test_goals_are_refused_clearly_without_a_controller(graph, make_emulator):
+    emulator = make_emulator()
+    emulator.stop()
+    g = graph(emulator)
+    assert g.spin_until(g.arm.server_is_ready)
+    res = g.run_goal(g.arm, trajectory_goal([(1.0, [0.0, 1.0, -1.0, 0.0, 0.0])]))
+    assert res.status == GoalStatus.STATUS_ABORTED
+    assert "no connection to the Katana controller" in res.result.error_string
+
+
+def test_serial_transport_through_a_pseudo_terminal(graph, make_emulator):
+    emulator = make_emulator(serial=True)
+    g = graph(emulator, transport="serial", serial_device=emulator.serial_device, katana_type=300)
+    g.ready()
+    assert g.states[-1].position[1] == pytest.approx(2.168572, abs=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [("katana_type", 350), ("variant", "6M45"), ("poll_rate", 100.0), ("transport", "usb")],
+)
+def test_bad_parameters_stop_the_node_naming_them(make_emulator, name, value):
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        with pytest.raises(ParameterError, match=name):
+            KatanaDriverNode(
+                node_name=f"katana_driver_bad_{next(_ids)}",
+                context=ctx,
+                parameter_overrides=[Parameter(name, value=value)],
+            )
+    finally:
+        rclpy.shutdown(context=ctx)

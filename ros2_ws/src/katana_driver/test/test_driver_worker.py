@@ -1,0 +1,162 @@
+"""The arm worker against the emulator: calibration, trajectories, faults, lost links."""
+
+import threading
+
+import pytest
+from katana_driver.core import protocol as p
+from katana_driver.core.arm import ArmWorker
+from katana_driver.core.encoders import EncoderModel
+from katana_driver.core.splines import plan_trajectory
+from katana_driver.core.transport import TcpTransport
+
+pytestmark = pytest.mark.timeout(60)
+MODEL = EncoderModel()
+
+
+class Worker:
+    """An ArmWorker with a log and a state counter, stopped at the end of the test."""
+
+    def __init__(self, emulator, **kwargs):
+        self.logs: list[tuple[str, str]] = []
+        self.states = 0
+        self.changed = threading.Event()
+        host, port = emulator.address
+        kwargs.setdefault("reconnect_period", 0.2)
+        self.worker = ArmWorker(
+            TcpTransport(host, port, timeout=0.2),
+            MODEL,
+            on_state=self._on_state,
+            log=lambda level, text: self.logs.append((level, text)),
+            **kwargs,
+        )
+        self.worker.start()
+
+    def _on_state(self, state):
+        self.states += 1
+
+    def wait(self, predicate, polls=150):
+        """Wait for ``predicate`` over a bounded number of polls (each at most 0.2 s)."""
+        last = 0.0
+        for _ in range(polls):
+            if predicate():
+                return True
+            state = self.worker.wait_state(after=last, timeout=0.2)
+            if state is not None:
+                last = state.stamp
+        return predicate()
+
+
+@pytest.fixture
+def worker_for():
+    made = []
+
+    def make(emulator, **kwargs):
+        w = Worker(emulator, **kwargs)
+        made.append(w)
+        return w
+
+    yield make
+    for w in made:
+        w.worker.stop()
+
+
+def test_calibrates_when_needed_and_says_it_talks_to_the_emulator(make_emulator, worker_for):
+    w = worker_for(make_emulator())
+    assert w.wait(lambda: w.worker.ready)
+    assert w.worker.state.encoders == [31000, -31000, -31000, 31000, 31000, 31000]
+    texts = " ".join(t for _, t in w.logs)
+    assert "Axis not calibrated" in texts and "calibration done" in texts
+    assert any(level == "warn" and "emulator" in t for level, t in w.logs)
+
+
+def test_without_calibration_the_arm_is_reported_uncalibrated(make_emulator, worker_for):
+    w = worker_for(make_emulator(), calibrate_on_start=False)
+    assert w.wait(lambda: w.worker.connected and w.worker.state is not None)
+    assert not w.worker.calibrated
+    assert any("not calibrated" in t for level, t in w.logs if level == "error")
+
+
+def test_follows_a_trajectory_within_tolerance(make_emulator, worker_for):
+    emulator = make_emulator()
+    w = worker_for(emulator)
+    assert w.wait(lambda: w.worker.ready)
+    times = [0.8, 1.6]
+    goals = [[-2.7, 1.9, -1.9, -1.7, -2.6], [-2.4, 1.7, -1.6, -1.4, -2.3]]
+    plan = plan_trajectory(MODEL, w.worker.state.encoders, times, goals)
+    with w.worker.busy():
+        stream = w.worker.start_trajectory(plan)
+        t0 = stream.started.result(timeout=5)
+        worst = 0.0
+        done = False
+        last = t0
+        for _ in range(200):
+            state = w.worker.wait_state(after=last, timeout=1.0)
+            assert state is not None
+            last = state.stamp
+            desired = plan.desired_at(state.stamp - t0)
+            worst = max(
+                worst, max(abs(a - d) for a, d in zip(state.positions[:5], desired, strict=True))
+            )
+            if state.stamp - t0 > plan.duration_s and state.status_stamp > t0 + plan.duration_s:
+                done = all(s == p.STATUS_SPLINE_DONE for s in state.status[:5])
+                break
+    assert done
+    assert worst < 0.05  # rad: timing offsets of a poll, at speeds under 1 rad/s
+    assert w.worker.state.positions[:5] == pytest.approx(goals[-1], abs=2e-3)
+    assert emulator.model.statuses()[5] == p.STATUS_SPLINE_DONE  # the gripper held its place
+
+
+def test_long_trajectories_are_streamed_through_the_move_buffer(make_emulator, worker_for):
+    emulator = make_emulator(time_scale=1.0)
+    w = worker_for(emulator)
+    assert w.wait(lambda: w.worker.ready)
+    # 12 s of pan motion in 0.5 s segments: 24 segments, more than the 16-slot buffer.
+    times = [2.0 * (k + 1) for k in range(6)]
+    goals = [[-3.0 + 0.15 * (k + 1), 2.1, -2.2, -2.0, -2.9] for k in range(6)]
+    plan = plan_trajectory(MODEL, w.worker.state.encoders, times, goals)
+    assert len(plan.segments) > 16
+    emulator.model.time_scale = 1.0
+    with w.worker.busy():
+        stream = w.worker.start_trajectory(plan)
+        stream.started.result(timeout=5)
+        stream.finished_sending.result(timeout=20)
+    assert w.wait(lambda: w.worker.state.status[0] == p.STATUS_SPLINE_DONE, polls=200)
+    assert w.worker.state.positions[0] == pytest.approx(goals[-1][0], abs=2e-3)
+
+
+def test_reconnects_after_a_lost_link(make_emulator, worker_for):
+    emulator = make_emulator(calibrated=True)
+    w = worker_for(emulator)
+    assert w.wait(lambda: w.worker.connected)
+    emulator.drop_connection()
+    assert w.wait(lambda: any("lost connection" in t for _, t in w.logs))
+    assert w.wait(lambda: w.worker.connected)
+    before = w.states
+    assert w.wait(lambda: w.states > before + 3)
+
+
+def test_collision_is_reported_with_the_controllers_message(make_emulator, worker_for):
+    emulator = make_emulator(calibrated=True)
+    w = worker_for(emulator)
+    assert w.wait(lambda: w.worker.connected and emulator.model.collision_detection)
+    assert emulator.model.inject_collision(3)
+    assert w.wait(lambda: bool(w.worker.collision_message))
+    assert "Collision on axis 3" in w.worker.collision_message
+
+
+def test_survives_split_and_occasional_bad_replies(make_emulator, worker_for):
+    emulator = make_emulator(calibrated=True, split_replies=True, corrupt_rate=0.05, seed=3)
+    w = worker_for(emulator)
+    assert w.wait(lambda: w.worker.connected)
+    assert w.wait(lambda: w.states > 30)
+    assert w.worker.transport.stats.crc_errors > 0
+    assert w.worker.state.encoders == emulator.model.encoders()
+
+
+def test_jobs_fail_fast_when_not_connected(make_emulator, worker_for):
+    emulator = make_emulator()
+    emulator.stop()  # nobody listens
+    w = worker_for(emulator)
+    future = w.worker.submit(lambda client: client.echo())
+    with pytest.raises(Exception, match="no connection"):
+        future.result(timeout=1)
