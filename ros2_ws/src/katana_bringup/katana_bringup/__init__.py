@@ -1,0 +1,1 @@
+"""Bring-up of the Katana node graph: katana-run, launch files, parameters."""

@@ -1,0 +1,158 @@
+"""Katana arm facts (KATANA.md) shared by the URDF generator, the kinematics and the sim.
+
+ROS-free. One place for link lengths, limits, speeds and masses, so the URDF and the closed-form
+kinematics cannot drift apart; the kinematics tests still check the two against PyBullet's own
+forward kinematics of the generated URDF.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+ARM_JOINTS: tuple[str, ...] = (
+    "katana_motor1_pan_joint",
+    "katana_motor2_lift_joint",
+    "katana_motor3_lift_joint",
+    "katana_motor4_lift_joint",
+    "katana_motor5_wrist_roll_joint",
+)
+FINGER_JOINTS: tuple[str, ...] = ("katana_r_finger_joint", "katana_l_finger_joint")
+ALL_JOINTS: tuple[str, ...] = ARM_JOINTS + FINGER_JOINTS
+
+#: (lower, upper) rad, from the ROS 1 URDF (KNI encoder ranges).
+JOINT_LIMITS: dict[str, tuple[float, float]] = {
+    "katana_motor1_pan_joint": (-3.025528, 2.891097),
+    "katana_motor2_lift_joint": (-0.135228, 2.168572),
+    "katana_motor3_lift_joint": (-2.221804, 2.054223),
+    "katana_motor4_lift_joint": (-2.033309, 1.876133),
+    "katana_motor5_wrist_roll_joint": (-2.993240, 2.870985),
+    "katana_r_finger_joint": (-0.44, 0.30),
+    "katana_l_finger_joint": (-0.44, 0.30),
+}
+#: rad/s; motor 3 was measured at half the nominal speed.
+JOINT_MAX_SPEED: dict[str, float] = {
+    "katana_motor1_pan_joint": 2.208932,
+    "katana_motor2_lift_joint": 1.190799,
+    "katana_motor3_lift_joint": 1.190799,
+    "katana_motor4_lift_joint": 2.208932,
+    "katana_motor5_wrist_roll_joint": 2.208932,
+    "katana_r_finger_joint": 0.718834,
+    "katana_l_finger_joint": 0.718834,
+}
+#: N m the simulated motors may use. Not the URDF's effort limits (measured with gravity off):
+#: holding the arm horizontal needs about 6.9 N m at motor 2, so these leave a wide margin.
+SIM_MOTOR_TORQUE: dict[str, float] = {
+    "katana_motor1_pan_joint": 40.0,
+    "katana_motor2_lift_joint": 60.0,
+    "katana_motor3_lift_joint": 40.0,
+    "katana_motor4_lift_joint": 20.0,
+    "katana_motor5_wrist_roll_joint": 5.0,
+    "katana_r_finger_joint": 1.0,
+    "katana_l_finger_joint": 1.0,
+}
+
+BASE_HEIGHT = 0.2015  # table (base link) to the motor 2 axis
+LINK2 = 0.19  # motor 2 -> motor 3
+LINK3 = 0.139  # motor 3 -> motor 4
+WRIST_TO_GRIPPER = 0.0323  # motor 5 joint -> gripper link (ROS 1 URDF)
+
+# Gripper: each finger is a lever of length FINGER_LEVER from a pivot on the gripper's centre line,
+# at angle FINGER_ANGLE0 + q from the approach axis. This reproduces KATANA.md's jaw openings:
+# touching at -0.44 rad, about 6.3 cm at 0 and 9.7 cm at 0.30.
+FINGER_ANGLE0 = 0.44
+FINGER_LEVER = 0.0737
+#: finger angle at which the pads are parallel (a 4 cm block); pads are flat boxes at the tips
+FINGER_PAD_PARALLEL_AT = -0.165
+FINGER_PAD_LENGTH = 0.026  # along the approach axis
+FINGER_PAD_THICKNESS = 0.008
+FINGER_PAD_WIDTH = 0.022
+
+# Masses (kg), KATANA.md.
+MASSES: dict[str, float] = {
+    "base": 1.405,
+    "link1": 0.748,
+    "link2": 0.802,
+    "link3": 0.792,
+    "link4": 0.692,
+    "link5": 0.256,
+    "gripper": 0.055,
+    "finger": 0.025,
+}
+
+#: Parked behind the base, gripper pointing down 0.125 m above the table, out of the overhead
+#: camera's view (the ROS 1 driver's park pose leaves the forearm in the default image). It is
+#: also the pick-and-place transit pose at that pan angle, so leaving it needs no extra move.
+PARK_POSE: tuple[float, ...] = (-3.0, 1.6447, -1.3766, 1.8389, 0.0)
+ROS1_PARK_POSE: tuple[float, ...] = (-3.022, 2.163, -2.207, -2.026, -2.990)
+GRIPPER_OPEN = 0.30
+GRIPPER_CLOSED = -0.44
+
+
+@dataclass(frozen=True)
+class ArmModel:
+    """Lengths that differ between Katana types (6M180 gripper in line with the wrist)."""
+
+    name: str
+    link4: float  # motor 4 -> motor 5
+    tool: float  # motor 5 -> tool frame (the point between the finger pads)
+    limits: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(JOINT_LIMITS))
+
+    @property
+    def finger_pivot(self) -> float:
+        """Distance from the gripper link origin to the finger pivots along the approach axis."""
+        reach = FINGER_LEVER * math.cos(FINGER_ANGLE0 + FINGER_PAD_PARALLEL_AT)
+        return self.tool - WRIST_TO_GRIPPER - reach
+
+
+MODELS: dict[str, ArmModel] = {
+    "450_6m180": ArmModel("450_6m180", link4=0.1473, tool=0.1555),
+    "400_6m180": ArmModel("400_6m180", link4=0.1523, tool=0.166),
+    "300_6m180": ArmModel("300_6m180", link4=0.1523, tool=0.166),
+}
+DEFAULT_MODEL = "450_6m180"
+#: Types the Katana family has that are not modelled here (angled 90 degree grippers).
+UNMODELLED = ("450_6m90a", "450_6m90b")
+
+
+def get_model(name: str) -> ArmModel:
+    """The arm model called `name`; a clear ValueError for the angled-gripper variants."""
+    key = name.lower()
+    if key in MODELS:
+        return MODELS[key]
+    if key in UNMODELLED:
+        raise ValueError(
+            f"katana model '{name}': the angled 6M90A/6M90B grippers are not modelled yet; "
+            f"use one of {sorted(MODELS)}"
+        )
+    raise ValueError(f"katana model '{name}' is unknown; use one of {sorted(MODELS)}")
+
+
+def finger_opening(q: float) -> float:
+    """Distance between the inner faces of the two pads at finger angle q (m)."""
+    return 2.0 * FINGER_LEVER * math.sin(FINGER_ANGLE0 + q)
+
+
+def finger_angle_for_opening(width: float) -> float:
+    """Finger angle at which the pads are `width` apart (inverse of finger_opening)."""
+    s = max(-1.0, min(1.0, width / (2.0 * FINGER_LEVER)))
+    return math.asin(s) - FINGER_ANGLE0
+
+
+# Blocks and table (shared scene defaults).
+BLOCK_SIZE: tuple[float, float, float] = (0.04, 0.04, 0.03)
+BLOCK_MASS = 0.04
+COLOURS: dict[str, tuple[float, float, float, float]] = {
+    "red": (0.85, 0.10, 0.10, 1.0),
+    "green": (0.10, 0.70, 0.15, 1.0),
+    "blue": (0.10, 0.20, 0.90, 1.0),
+    "yellow": (0.95, 0.85, 0.10, 1.0),
+    "orange": (1.00, 0.50, 0.05, 1.0),
+    "purple": (0.50, 0.15, 0.65, 1.0),
+    "cyan": (0.10, 0.85, 0.90, 1.0),
+    "magenta": (0.95, 0.15, 0.75, 1.0),
+}
+DEFAULT_COLOURS: tuple[str, ...] = tuple(COLOURS)
+TABLE_COLOUR = (0.78, 0.78, 0.78, 1.0)
+TABLE_SIZE = (1.0, 1.0, 0.03)
+TABLE_CENTRE_XY = (0.15, 0.0)

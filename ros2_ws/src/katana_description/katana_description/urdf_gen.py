@@ -1,0 +1,219 @@
+"""Writes the plain URDF files of the Katana, the table and the blocks (xacro is not installable
+here, so the files are generated from `models.py` and committed; rerun after changing a fact).
+
+    python -m katana_description.urdf_gen [OUT_DIR]      # default: the package's urdf/ folder
+
+The arm keeps the joint names, origins and axes of the ROS 1 katana_description (so joint angles
+mean the same as on the real arm and in the driver) with simple collision shapes (boxes and
+cylinders), KATANA.md's masses and the inertias of those shapes. The two fingers are levers
+whose tips carry flat, high-friction pads, so the gripper holds a block by contact and friction.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+from katana_description import models as m
+
+GREY = "0.55 0.55 0.58 1"
+DARK = "0.25 0.25 0.27 1"
+
+
+def _f(*values: float) -> str:
+    return " ".join(f"{v:.6g}" for v in values)
+
+
+def _box_inertia(mass: float, sx: float, sy: float, sz: float) -> tuple[float, float, float]:
+    return (
+        mass * (sy * sy + sz * sz) / 12.0,
+        mass * (sx * sx + sz * sz) / 12.0,
+        mass * (sx * sx + sy * sy) / 12.0,
+    )
+
+
+def _cyl_inertia(mass: float, r: float, h: float) -> tuple[float, float, float]:
+    side = mass * (3.0 * r * r + h * h) / 12.0
+    return side, side, mass * r * r / 2.0
+
+
+def _inertial(mass: float, xyz: tuple[float, float, float], diag: tuple[float, ...]) -> str:
+    return (
+        f'    <inertial>\n      <origin xyz="{_f(*xyz)}" rpy="0 0 0"/>\n'
+        f'      <mass value="{mass:.6g}"/>\n'
+        f'      <inertia ixx="{diag[0]:.6g}" ixy="0" ixz="0" iyy="{diag[1]:.6g}" iyz="0" '
+        f'izz="{diag[2]:.6g}"/>\n    </inertial>\n'
+    )
+
+
+def _shape(kind: str, geom: str, xyz, rpy, material: str | None = None) -> str:
+    mat = ""
+    if material is not None:
+        mat = f'      <material name="{material[0]}"><color rgba="{material[1]}"/></material>\n'
+    return (
+        f"    <{kind}>\n      <origin xyz=\"{_f(*xyz)}\" rpy=\"{_f(*rpy)}\"/>\n"
+        f"      <geometry>{geom}</geometry>\n{mat}    </{kind}>\n"
+    )
+
+
+def _link(name: str, geom: str, xyz, rpy, mass: float, com, diag, colour=("grey", GREY),
+          collide: bool = True, extra: str = "") -> str:
+    body = _shape("visual", geom, xyz, rpy, colour)
+    if collide:
+        body += _shape("collision", geom, xyz, rpy)
+    return f'  <link name="{name}">\n{body}{extra}{_inertial(mass, com, diag)}  </link>\n'
+
+
+def _joint(name: str, parent: str, child: str, xyz, rpy, kind: str = "revolute") -> str:
+    text = (
+        f'  <joint name="{name}" type="{kind}">\n    <parent link="{parent}"/>\n'
+        f'    <child link="{child}"/>\n    <origin xyz="{_f(*xyz)}" rpy="{_f(*rpy)}"/>\n'
+    )
+    if kind == "revolute":
+        lo, hi = m.JOINT_LIMITS[name]
+        text += (
+            '    <axis xyz="0 0 1"/>\n'
+            f'    <limit lower="{lo}" upper="{hi}" effort="{m.SIM_MOTOR_TORQUE[name]}" '
+            f'velocity="{m.JOINT_MAX_SPEED[name]}"/>\n    <dynamics damping="0.05" friction="0"/>\n'
+        )
+    return text + "  </joint>\n"
+
+
+def _box(sx: float, sy: float, sz: float) -> str:
+    return f'<box size="{_f(sx, sy, sz)}"/>'
+
+
+def _cyl(r: float, h: float) -> str:
+    return f'<cylinder radius="{r:.6g}" length="{h:.6g}"/>'
+
+
+def _finger(prefix: str, flip: float, pivot: float) -> str:
+    """One finger: a lever (visual only) and a pad at its tip (visual and collision)."""
+    name = f"katana_{prefix}_finger_joint"
+    link = f"katana_{prefix}_finger_link"
+    a0, lever = m.FINGER_ANGLE0, m.FINGER_LEVER
+    tip = (lever * math.cos(a0), lever * math.sin(a0), 0.0)
+    pad_yaw = -m.FINGER_PAD_PARALLEL_AT  # parallel to the approach axis at that finger angle
+    # The pad's inner face passes through the tip; its centre sits half a thickness outwards.
+    half_t = m.FINGER_PAD_THICKNESS / 2.0
+    pad = (tip[0] - math.sin(pad_yaw) * half_t, tip[1] + math.cos(pad_yaw) * half_t, 0.0)
+    pad_geom = _box(m.FINGER_PAD_LENGTH, m.FINGER_PAD_THICKNESS, m.FINGER_PAD_WIDTH)
+    lever_geom = _box(lever, 0.006, 0.012)
+    mass = m.MASSES["finger"]
+    body = _shape("visual", lever_geom, (tip[0] / 2, tip[1] / 2, 0.0), (0, 0, a0), ("dark", DARK))
+    body += _shape("visual", pad_geom, pad, (0, 0, pad_yaw), ("dark", DARK))
+    body += _shape("collision", pad_geom, pad, (0, 0, pad_yaw))
+    body += _inertial(mass, (tip[0] / 2, tip[1] / 2, 0.0), _box_inertia(mass, lever, 0.01, 0.012))
+    joint = _joint(name, "katana_gripper_link", link, (pivot, 0, 0), (flip, 0, 0))
+    return joint + f'  <link name="{link}">\n{body}  </link>\n'
+
+
+def arm_urdf(model_name: str = m.DEFAULT_MODEL) -> str:
+    """The URDF text of one Katana 6M180 type (see models.MODELS)."""
+    model = m.get_model(model_name)
+    pi = math.pi
+    mass = m.MASSES
+    parts = [
+        '<?xml version="1.0"?>\n',
+        "<!-- Generated by katana_description.urdf_gen from models.py: do not edit. -->\n",
+        f'<robot name="katana_{model.name}">\n',
+        _link("katana_base_link", _cyl(0.06, 0.17), (0, 0, 0.085), (0, 0, 0), mass["base"],
+              (0, 0, 0.07), _cyl_inertia(mass["base"], 0.06, 0.17)),
+        _joint("katana_motor1_pan_joint", "katana_base_link", "katana_motor1_pan_link",
+               (0, 0, m.BASE_HEIGHT), (0, 0, 0)),
+        _link("katana_motor1_pan_link", _cyl(0.045, 0.06), (0, 0, -0.02), (0, 0, 0),
+              mass["link1"], (0, 0, -0.017), _cyl_inertia(mass["link1"], 0.045, 0.06)),
+        _joint("katana_motor2_lift_joint", "katana_motor1_pan_link", "katana_motor2_lift_link",
+               (0, 0, 0), (pi / 2, 0, 0)),
+        _link("katana_motor2_lift_link", _box(m.LINK2 + 0.05, 0.045, 0.05), (m.LINK2 / 2, 0, 0),
+              (0, 0, 0), mass["link2"], (m.LINK2 / 2, 0, 0),
+              _box_inertia(mass["link2"], m.LINK2 + 0.05, 0.045, 0.05)),
+        _joint("katana_motor3_lift_joint", "katana_motor2_lift_link", "katana_motor3_lift_link",
+               (m.LINK2, 0, 0), (0, 0, 0)),
+        _link("katana_motor3_lift_link", _box(m.LINK3 + 0.02, 0.04, 0.045), (m.LINK3 / 2, 0, 0),
+              (0, 0, 0), mass["link3"], (m.LINK3 * 0.42, 0, 0),
+              _box_inertia(mass["link3"], m.LINK3 + 0.02, 0.04, 0.045)),
+        _joint("katana_motor4_lift_joint", "katana_motor3_lift_link", "katana_motor4_lift_link",
+               (m.LINK3, 0, 0), (pi, 0, 0)),
+        _link("katana_motor4_lift_link", _box(model.link4, 0.04, 0.04), (model.link4 / 2, 0, 0),
+              (0, 0, 0), mass["link4"], (model.link4 / 2, 0, 0),
+              _box_inertia(mass["link4"], model.link4, 0.04, 0.04)),
+        # Motor 5's frame has its z axis pointing back along the arm (ROS 1 convention).
+        _joint("katana_motor5_wrist_roll_joint", "katana_motor4_lift_link",
+               "katana_motor5_wrist_roll_link", (model.link4, 0, 0), (pi / 2, 0, -pi / 2)),
+        _link("katana_motor5_wrist_roll_link", _cyl(0.022, m.WRIST_TO_GRIPPER),
+              (0, 0, -m.WRIST_TO_GRIPPER / 2), (0, 0, 0), mass["link5"], (0, 0, -0.01),
+              _cyl_inertia(mass["link5"], 0.022, m.WRIST_TO_GRIPPER)),
+        # Gripper link: x along the approach direction, fingers close along y.
+        _joint("katana_gripper_joint", "katana_motor5_wrist_roll_link", "katana_gripper_link",
+               (0, 0, -m.WRIST_TO_GRIPPER), (0, pi / 2, 0), kind="fixed"),
+        _link("katana_gripper_link", _box(model.finger_pivot + 0.006, 0.05, 0.034),
+              ((model.finger_pivot + 0.006) / 2, 0, 0), (0, 0, 0), mass["gripper"],
+              (model.finger_pivot / 2, 0, 0),
+              _box_inertia(mass["gripper"], model.finger_pivot, 0.05, 0.034), ("dark", DARK)),
+        _finger("r", 0.0, model.finger_pivot),
+        _finger("l", pi, model.finger_pivot),
+        # The tool frame: between the finger pads; x along the approach, y towards the r finger.
+        _joint("katana_gripper_tool_frame_joint", "katana_gripper_link",
+               "katana_gripper_tool_frame", (model.tool - m.WRIST_TO_GRIPPER, 0, 0), (0, 0, 0),
+               kind="fixed"),
+        # A tiny mass: PyBullet gives a link without inertial 1 kg.
+        '  <link name="katana_gripper_tool_frame">\n'
+        + _inertial(1e-5, (0, 0, 0), (1e-9, 1e-9, 1e-9))
+        + "  </link>\n",
+        "</robot>\n",
+    ]
+    return "".join(parts)
+
+
+def block_urdf(name: str, size=m.BLOCK_SIZE, mass: float = m.BLOCK_MASS,
+               rgba=(0.8, 0.1, 0.1, 1.0)) -> str:
+    """A solid cuboid block; its link frame is at the block's centre."""
+    geom = _box(*size)
+    diag = _box_inertia(mass, *size)
+    return (
+        f'<?xml version="1.0"?>\n<robot name="block_{name}">\n'
+        + _link(f"block_{name}", geom, (0, 0, 0), (0, 0, 0), mass, (0, 0, 0), diag,
+                (name, _f(*rgba)))
+        + "</robot>\n"
+    )
+
+
+def table_urdf(size=m.TABLE_SIZE, centre_xy=m.TABLE_CENTRE_XY, rgba=m.TABLE_COLOUR) -> str:
+    """A static table whose top surface is the plane z = 0 of its frame (the world frame)."""
+    geom = _box(*size)
+    xyz = (centre_xy[0], centre_xy[1], -size[2] / 2)
+    return (
+        '<?xml version="1.0"?>\n<robot name="table">\n'
+        + _link("table", geom, xyz, (0, 0, 0), 0.0, xyz, (0.0, 0.0, 0.0),
+                ("table_grey", _f(*rgba)))
+        + "</robot>\n"
+    )
+
+
+def write_all(out_dir: Path) -> list[Path]:
+    """Write every arm type, the table and one block per colour; returns the written paths."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files: dict[str, str] = {f"katana_{k}.urdf": arm_urdf(k) for k in m.MODELS}
+    files["table.urdf"] = table_urdf()
+    for colour, rgba in m.COLOURS.items():
+        files[f"block_{colour}.urdf"] = block_urdf(colour, rgba=rgba)
+    written = []
+    for name, text in files.items():
+        path = out_dir / name
+        path.write_text(text)
+        written.append(path)
+    return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    out = Path(args[0]) if args else Path(__file__).resolve().parent.parent / "urdf"
+    for path in write_all(out):
+        print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,1 @@
+"""Katana kinematics, pick-and-place planning (core/) and pick_place_executor."""

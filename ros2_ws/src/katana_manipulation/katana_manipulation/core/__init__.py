@@ -1,0 +1,1 @@
+"""ROS-free kinematics and pick-and-place sequence."""

@@ -1,0 +1,487 @@
+"""The PyBullet world of the Katana, its table and blocks. ROS-free; `sim_node` is a thin wrapper.
+
+Usage (also for scripted scenes in other packages' tests):
+
+    from katana_sim.core import SimWorld, SimConfig
+    world = SimWorld(SimConfig(num_blocks=4, seed=1))  # DIRECT mode, no display
+    world.reset(seed=7)                    # scatter the blocks (seeded), park the arm
+    rgb = world.render()                   # np.uint8 (480, 640, 3), overhead camera
+    cam = world.camera                     # CameraModel: K, P, pose, project(), pixel_to_plane()
+    blocks = world.ground_truth()          # list[BlockState]: id, colour, position, yaw, level,
+                                           #   on_top, visible, pixel_u/v/angle, quaternion, size
+    world.set_block_pose("red", (0.2, 0.0, 0.015), yaw=0.3)   # teleport (centre, metres)
+    world.stack("green", on="red", dx=0.0, dy=0.0)            # put one block on another
+    world.step(240)                        # advance physics (1/physics_rate s per step)
+    world.settle()                         # step until every block is at rest (bounded)
+    world.set_arm_positions(q5)            # teleport the arm (and hold it there)
+    world.close()
+
+Arm control: `start_trajectory(TrajectoryGoal)` and `start_gripper(position, effort)` return a
+handle whose `.outcome` says when the motion is done; stepping the world advances them. The
+motors are PyBullet position motors fed a target that moves within the joint speed limits, with
+torques far above what gravity needs (katana_description.models.SIM_MOTOR_TORQUE). Blocks are held
+by contact and friction only: nothing welds a block to the hand.
+
+Ground truth levels come from geometry: a block resting on the table is level 1; one whose
+bottom face touches another block's top face, overlapping it, is one level higher.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pybullet as p
+from katana_description import models as m
+from katana_description import urdf_gen, urdf_path
+
+from katana_sim.core import controllers as ctl
+from katana_sim.core.camera import CameraModel
+from katana_sim.core.config import SimConfig
+
+FINGER_PAD_LINKS = ("katana_r_finger_link", "katana_l_finger_link")
+
+
+@dataclass
+class BlockState:
+    """True state of one block (frame `world`)."""
+
+    id: str
+    color: str
+    position: tuple[float, float, float]
+    quaternion: tuple[float, float, float, float]  # x, y, z, w
+    yaw: float  # about +z, in (-pi/2, pi/2]
+    size: tuple[float, float, float]
+    level: int  # 1 on the table, 2 on one block, ...
+    on_top: bool  # nothing rests on it
+    visible: bool  # its top face is in the image and not covered by another block (the arm is
+    # not considered: park it out of view before an image is taken)
+    tilted: bool  # not lying flat (fell over, leaning)
+    pixel_u: float
+    pixel_v: float
+    pixel_angle: float  # direction of the block's x axis in the image, rad (mod pi)
+    support: str = ""  # id of the block it rests on; "" for the table
+
+
+def _yaw_of(quat) -> float:
+    """Yaw of the block's x axis in (-pi/2, pi/2] (a cuboid is symmetric under half turns)."""
+    rot = np.array(p.getMatrixFromQuaternion(quat)).reshape(3, 3)
+    yaw = math.atan2(rot[1, 0], rot[0, 0])
+    while yaw <= -math.pi / 2:
+        yaw += math.pi
+    while yaw > math.pi / 2:
+        yaw -= math.pi
+    return yaw
+
+
+class ArmHandle:
+    """A running arm or gripper motion; `.outcome` is updated as the world steps."""
+
+    def __init__(self, controller) -> None:
+        self.controller = controller
+
+    @property
+    def outcome(self):
+        return self.controller.outcome
+
+
+class SimWorld:
+    def __init__(self, config: SimConfig | None = None) -> None:
+        self.cfg = (config or SimConfig()).validate()
+        self.camera: CameraModel = self.cfg.camera
+        self.dt = 1.0 / self.cfg.physics_rate
+        self.time = 0.0
+        self._cid = p.connect(p.DIRECT)
+        self._tmp = tempfile.TemporaryDirectory(prefix="katana_sim_")
+        self._rng = np.random.default_rng(self.cfg.seed)
+        self._trajectory: ctl.TrajectoryFollower | None = None
+        self._gripper: ctl.GripperController | None = None
+        self.reset(self.cfg.seed)
+
+    # ------------------------------------------------------------------ construction
+    def _pb(self, fn, *args, **kwargs):
+        return fn(*args, physicsClientId=self._cid, **kwargs)
+
+    def _write(self, name: str, text: str) -> str:
+        path = Path(self._tmp.name) / name
+        path.write_text(text)
+        return str(path)
+
+    def _build(self) -> None:
+        cfg = self.cfg
+        self._pb(p.setGravity, 0, 0, -9.81)
+        self._pb(p.setTimeStep, self.dt)
+        self._pb(p.setPhysicsEngineParameter, numSolverIterations=20,
+                 deterministicOverlappingPairs=1)
+        self.table = self._pb(p.loadURDF, self._write("table.urdf", urdf_gen.table_urdf()),
+                              useFixedBase=True)
+        self._prepare_table_render()
+        arm_file = cfg.arm_urdf or str(urdf_path(f"katana_{m.get_model(cfg.model).name}.urdf"))
+        self.arm = self._pb(p.loadURDF, arm_file, (0, 0, 0), useFixedBase=True,
+                            flags=p.URDF_USE_INERTIA_FROM_FILE)
+        self.joint_index: dict[str, int] = {}
+        self.link_index: dict[str, int] = {}
+        for i in range(self._pb(p.getNumJoints, self.arm)):
+            info = self._pb(p.getJointInfo, self.arm, i)
+            self.joint_index[info[1].decode()] = i
+            self.link_index[info[12].decode()] = i
+        self._arm_idx = [self.joint_index[n] for n in m.ARM_JOINTS]
+        self._finger_idx = [self.joint_index[n] for n in m.FINGER_JOINTS]
+        self._all_idx = self._arm_idx + self._finger_idx
+        self._forces = [m.SIM_MOTOR_TORQUE[n] for n in m.ALL_JOINTS]
+        # One motor drives both fingers on the real gripper: couple the two finger joints with a
+        # gear constraint (an internal linkage of the hand, not a tie to any block).
+        gear = self._pb(p.createConstraint, self.arm, self._finger_idx[0], self.arm,
+                        self._finger_idx[1], p.JOINT_GEAR, (0, 0, 1), (0, 0, 0), (0, 0, 0))
+        self._pb(p.changeConstraint, gear, gearRatio=-1.0, maxForce=50.0, erp=0.8)
+        for link in FINGER_PAD_LINKS:
+            self._pb(p.changeDynamics, self.arm, self.link_index[link],
+                     lateralFriction=cfg.finger_friction, spinningFriction=0.01,
+                     frictionAnchor=1)
+        self.blocks: dict[str, int] = {}
+        for colour in cfg.colours:
+            text = urdf_gen.block_urdf(colour, cfg.block_size, cfg.block_mass, m.COLOURS[colour])
+            body = self._pb(p.loadURDF, self._write(f"block_{colour}.urdf", text), (0, 0, -1))
+            self._pb(p.changeDynamics, body, -1, lateralFriction=cfg.block_friction,
+                     spinningFriction=0.001, rollingFriction=0.0, restitution=0.0)
+            self.blocks[colour] = body
+        self._targets = np.zeros(len(self._all_idx))
+        self._target_vel = np.zeros(len(self._all_idx))
+        self._finger_effort = cfg.gripper_effort
+
+    def close(self) -> None:
+        if self._cid is not None and p.isConnected(self._cid):
+            p.disconnect(self._cid)
+        self._cid = None
+        self._tmp.cleanup()
+
+    def __del__(self) -> None:  # best effort; explicit close() is preferred
+        try:
+            self.close()
+        except Exception:
+            pass
+
+    # ------------------------------------------------------------------ scene
+    def scatter_poses(self, seed: int) -> list[tuple[float, float, float]]:
+        """Seeded, non-overlapping (x, y, yaw) per block, inside the play area and the image."""
+        cfg = self.cfg
+        rng = np.random.default_rng(seed)
+        sx, sy, sz = cfg.block_size
+        radius = 0.5 * math.hypot(sx, sy)
+        min_dist = 2 * radius + cfg.min_gap
+        for _ in range(200):
+            poses: list[tuple[float, float, float]] = []
+            for _block in cfg.colours:
+                for _try in range(500):
+                    x = rng.uniform(*cfg.play_x)
+                    y = rng.uniform(*cfg.play_y)
+                    if not cfg.play_radius[0] <= math.hypot(x, y) <= cfg.play_radius[1]:
+                        continue
+                    if any(math.hypot(x - a, y - b) < min_dist for a, b, _ in poses):
+                        continue
+                    corners = np.array([[x + dx, y + dy, sz] for dx in (-radius, radius)
+                                        for dy in (-radius, radius)])
+                    if not self.camera.in_view(corners, margin_px=4).all():
+                        continue
+                    poses.append((x, y, float(rng.uniform(-math.pi / 4, math.pi / 4))))
+                    break
+                else:
+                    break
+            if len(poses) == len(cfg.colours):
+                return poses
+        raise RuntimeError("could not scatter the blocks without overlap: play area too small")
+
+    def reset(self, seed: int | None = None) -> list[BlockState]:
+        """Scatter the blocks (seed None: the next seed of this world's own sequence), park the
+        arm with the gripper open, and let everything settle."""
+        if seed is None or seed < 0:
+            seed = int(self._rng.integers(0, 2**31 - 1))
+        self.last_seed = int(seed)
+        # A fresh physics world, so that a seed gives the same episode whatever came before
+        # (contact caches and solver warm starts carry history otherwise).
+        self._pb(p.resetSimulation)
+        self._build()
+        self._trajectory = None
+        self._gripper = None
+        self.set_arm_positions(m.PARK_POSE, m.GRIPPER_OPEN)
+        half = self.cfg.block_size[2] / 2
+        for colour, (x, y, yaw) in zip(self.cfg.colours, self.scatter_poses(seed), strict=True):
+            self.set_block_pose(colour, (x, y, half), yaw)
+        self.step(int(0.1 / self.dt))
+        return self.ground_truth()
+
+    def set_block_pose(self, block_id: str, position, yaw: float = 0.0,
+                       quaternion=None) -> None:
+        """Teleport a block (centre position, metres) and stop it."""
+        body = self.blocks[block_id]
+        quat = quaternion if quaternion is not None else p.getQuaternionFromEuler((0, 0, yaw))
+        self._pb(p.resetBasePositionAndOrientation, body, tuple(position), tuple(quat))
+        self._pb(p.resetBaseVelocity, body, (0, 0, 0), (0, 0, 0))
+
+    def stack(self, block_id: str, on: str, dx: float = 0.0, dy: float = 0.0,
+              yaw: float | None = None) -> None:
+        """Put block_id on top of block `on`, offset by (dx, dy) metres in the world frame."""
+        pos, quat = self._pb(p.getBasePositionAndOrientation, self.blocks[on])
+        top_yaw = _yaw_of(quat) if yaw is None else yaw
+        h = self.cfg.block_size[2]
+        self.set_block_pose(block_id, (pos[0] + dx, pos[1] + dy, pos[2] + h + 1e-4), top_yaw)
+
+    def block_pose(self, block_id: str) -> tuple[np.ndarray, np.ndarray]:
+        pos, quat = self._pb(p.getBasePositionAndOrientation, self.blocks[block_id])
+        return np.array(pos), np.array(quat)
+
+    def blocks_at_rest(self, lin_tol: float = 2e-3, ang_tol: float = 2e-2) -> bool:
+        for body in self.blocks.values():
+            lin, ang = self._pb(p.getBaseVelocity, body)
+            if np.linalg.norm(lin) > lin_tol or np.linalg.norm(ang) > ang_tol:
+                return False
+        return True
+
+    def settle(self, max_time: float = 3.0, min_time: float = 0.2) -> bool:
+        """Step until every block is at rest (True) or max_time simulated seconds passed."""
+        self.step(int(min_time / self.dt))
+        chunk = max(1, int(0.05 / self.dt))
+        t_end = self.time + max_time
+        while self.time < t_end:
+            if self.blocks_at_rest():
+                return True
+            self.step(chunk)
+        return self.blocks_at_rest()
+
+    # ------------------------------------------------------------------ arm
+    def set_arm_positions(self, arm_q, fingers: float | None = None) -> None:
+        """Teleport the arm (five angles) and, if given, the fingers; the motors hold there."""
+        q = list(arm_q)[:5]
+        for idx, v in zip(self._arm_idx, q, strict=True):
+            self._pb(p.resetJointState, self.arm, idx, v, 0.0)
+        self._targets[:5] = q
+        self._target_vel[:] = 0.0
+        if fingers is not None:
+            for idx in self._finger_idx:
+                self._pb(p.resetJointState, self.arm, idx, fingers, 0.0)
+            self._targets[5:] = fingers
+        self._trajectory = None
+        self._gripper = None
+
+    def joint_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Positions, velocities and motor torques of the seven joints (ALL_JOINTS order)."""
+        states = self._pb(p.getJointStates, self.arm, self._all_idx)
+        pos = np.array([s[0] for s in states])
+        vel = np.array([s[1] for s in states])
+        eff = np.array([s[3] for s in states])
+        return pos, vel, eff
+
+    def joint_positions(self) -> dict[str, float]:
+        pos, _, _ = self.joint_state()
+        return dict(zip(m.ALL_JOINTS, pos.tolist(), strict=True))
+
+    def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
+        """World position and quaternion of an arm link frame (PyBullet's own FK)."""
+        state = self._pb(p.getLinkState, self.arm, self.link_index[link],
+                         computeForwardKinematics=True)
+        return np.array(state[4]), np.array(state[5])
+
+    def tool_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.link_pose("katana_gripper_tool_frame")
+
+    def start_trajectory(self, goal: ctl.TrajectoryGoal) -> ArmHandle:
+        """Validate and start a trajectory (preempting a running one). A refused goal returns a
+        handle that is already done, with the error code and reason."""
+        current = self.joint_positions()
+        code, why = ctl.validate_trajectory(goal, current)
+        if code != ctl.SUCCESSFUL:
+            follower = ctl.TrajectoryFollower.__new__(ctl.TrajectoryFollower)
+            follower.outcome = ctl.Outcome(ctl.ABORTED, code, why)
+            return ArmHandle(follower)
+        self.cancel_trajectory("preempted by a new goal")
+        start = [self._targets[m.ARM_JOINTS.index(n)] for n in goal.joint_names]
+        follower = ctl.TrajectoryFollower(goal, self.time, start)
+        self._trajectory = follower
+        return ArmHandle(follower)
+
+    def cancel_trajectory(self, reason: str = "canceled", only: ArmHandle | None = None) -> None:
+        """Stop the running trajectory where the arm is now, and hold (if `only` is given: only
+        when that handle's trajectory is the running one)."""
+        if only is not None and only.controller is not self._trajectory:
+            return
+        if self._trajectory is not None and not self._trajectory.outcome.done:
+            self._trajectory.outcome = ctl.Outcome(ctl.CANCELED, ctl.SUCCESSFUL, reason)
+            pos, _, _ = self.joint_state()
+            self._targets[:5] = pos[:5]
+            self._target_vel[:5] = 0.0
+        self._trajectory = None
+
+    def start_gripper(self, position: float, effort: float = 0.0) -> ArmHandle:
+        """Move both fingers towards `position` (rad) with at most `effort` N m (0: default)."""
+        if not math.isfinite(position) or not math.isfinite(effort) or effort < 0:
+            raise ValueError(f"gripper goal must be finite with effort >= 0: {position}, {effort}")
+        self.cancel_gripper()
+        self._finger_effort = effort if effort > 0 else self.cfg.gripper_effort
+        # Start from where the fingers are: a target squeezing a block lies past them.
+        pos, _, _ = self.joint_state()
+        ctrl = ctl.GripperController(position, self._finger_effort, self.time,
+                                     float(pos[5:].mean()))
+        self._gripper = ctrl
+        return ArmHandle(ctrl)
+
+    def cancel_gripper(self, only: ArmHandle | None = None) -> None:
+        """Stop the fingers where they are (if `only` is given: only that motion)."""
+        if only is not None and only.controller is not self._gripper:
+            return
+        if self._gripper is not None and not self._gripper.outcome.done:
+            pos, _, _ = self.joint_state()
+            self._gripper.outcome = ctl.GripperOutcome(ctl.CANCELED, float(pos[5:].mean()))
+        self._gripper = None
+
+    @property
+    def busy(self) -> bool:
+        """True while an arm or gripper motion is running."""
+        return (self._trajectory is not None and not self._trajectory.outcome.done) or (
+            self._gripper is not None and not self._gripper.outcome.done
+        )
+
+    # ------------------------------------------------------------------ stepping
+    def step(self, n: int = 1) -> None:
+        """Advance n physics steps, driving the motors from the active controllers."""
+        forces = list(self._forces)
+        forces[5] = forces[6] = self._finger_effort
+        check_every = max(1, int(round(0.01 / self.dt)))
+        cid, arm, idx = self._cid, self.arm, self._all_idx
+        kp, kd = [0.3] * 7, [1.0] * 7
+        names = self._trajectory.names if self._trajectory is not None else []
+        joints = [m.ARM_JOINTS.index(name) for name in names]
+        for k in range(n):
+            traj, grip = self._trajectory, self._gripper
+            if traj is not None:
+                q, qd = traj.sample(self.time)
+                for j, v, vd in zip(joints, q, qd, strict=True):
+                    self._targets[j] = v
+                    self._target_vel[j] = vd
+            if grip is not None:
+                self._targets[5] = self._targets[6] = grip.target(self.time)
+            p.setJointMotorControlArray(
+                arm, idx, p.POSITION_CONTROL, targetPositions=self._targets.tolist(),
+                targetVelocities=self._target_vel.tolist(), forces=forces, positionGains=kp,
+                velocityGains=kd, physicsClientId=cid)
+            p.stepSimulation(physicsClientId=cid)
+            self.time += self.dt
+            if (traj is not None or grip is not None) and (k == n - 1 or k % check_every == 0):
+                self._check_controllers()
+
+    def _check_controllers(self) -> None:
+        pos, vel, _ = self.joint_state()
+        traj = self._trajectory
+        if traj is not None:
+            actual = np.array([pos[m.ARM_JOINTS.index(n)] for n in traj.names])
+            if traj.check(self.time, actual).done:
+                self._target_vel[:5] = 0.0
+                self._trajectory = None
+        grip = self._gripper
+        if grip is not None and grip.check(self.time, pos[5:], vel[5:]).done:
+            self._gripper = None
+
+    # ------------------------------------------------------------------ sensing
+    def _raw_render(self, width: int, height: int, focal: float) -> tuple[np.ndarray, np.ndarray]:
+        cam = self.camera
+        fov = math.degrees(2.0 * math.atan(height / 2.0 / focal))
+        proj = p.computeProjectionMatrixFOV(fov, width / height, cam.near, cam.far)
+        _, _, rgba, depth, _ = self._pb(
+            p.getCameraImage, width, height, cam.view_matrix(), proj,
+            renderer=p.ER_TINY_RENDERER, flags=p.ER_NO_SEGMENTATION_MASK, shadow=0,
+            lightDirection=(0.3, 0.2, 1.0), lightAmbientCoeff=0.6, lightDiffuseCoeff=0.45,
+            lightSpecularCoeff=0.0,
+        )
+        img = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
+        return np.ascontiguousarray(img), np.asarray(depth, dtype=np.float32).reshape(height, width)
+
+    def _prepare_table_render(self) -> None:
+        """The software renderer spends most of a frame shading the table top, which is flat and
+        evenly lit, so its colour is constant: measure it once (table alone in the scene), hide
+        the table from the renderer, and paint its projected polygon wherever nothing else was
+        drawn. The image is the same; a frame costs several times less."""
+        import cv2
+
+        cam = self.camera
+        small, _ = self._raw_render(32, 24, cam.focal_px * 32 / cam.width)
+        self._table_rgb = np.median(small.reshape(-1, 3), axis=0).astype(np.uint8)
+        sx, sy, _ = m.TABLE_SIZE
+        cx, cy = m.TABLE_CENTRE_XY
+        corners = np.array([[cx + a * sx / 2, cy + b * sy / 2, 0.0]
+                            for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+        uv = cam.project(corners)
+        self._table_mask: np.ndarray | None = None
+        if np.isfinite(uv).all():
+            mask = np.zeros((cam.height, cam.width), np.uint8)
+            cv2.fillPoly(mask, [np.round(uv).astype(np.int32)], 1)
+            self._table_mask = mask.astype(bool)
+            self._pb(p.changeVisualShape, self.table, -1, rgbaColor=(0, 0, 0, 0))
+
+    def render(self) -> np.ndarray:
+        """The overhead camera image, uint8 (height, width, 3), RGB."""
+        cam = self.camera
+        img, depth = self._raw_render(cam.width, cam.height, cam.focal_px)
+        if self._table_mask is not None:
+            img[(depth >= 0.99999) & self._table_mask] = self._table_rgb
+        return img
+
+    def ground_truth(self) -> list[BlockState]:
+        """True poses, stack levels and visibility of every block."""
+        sx, sy, h = self.cfg.block_size
+        raw = []
+        for bid, body in self.blocks.items():
+            pos, quat = self._pb(p.getBasePositionAndOrientation, body)
+            rot = np.array(p.getMatrixFromQuaternion(quat)).reshape(3, 3)
+            raw.append((bid, np.array(pos), quat, rot))
+        raw.sort(key=lambda r: r[1][2])
+        footprint = 0.5 * min(sx, sy) + 0.5 * max(sx, sy)  # centre distance allowing overlap
+        level: dict[str, int] = {}
+        support: dict[str, str] = {}
+        covered: set[str] = set()
+        for i, (bid, pos, _, _rot) in enumerate(raw):
+            best = ""
+            for other, opos, _, _ in raw[:i]:
+                dz = pos[2] - opos[2]
+                if abs(dz - h) < 0.4 * h and np.hypot(*(pos[:2] - opos[:2])) < footprint:
+                    if not best or level[other] > level[best]:
+                        best = other
+            if best:
+                level[bid] = level[best] + 1
+                support[bid] = best
+                covered.add(best)
+            else:
+                level[bid] = max(1, int(round((pos[2] - 0.5 * h) / h)) + 1)
+        # A block is also hidden when any block lies above it and overlaps it in xy.
+        for bid, pos, _, _ in raw:
+            for other, opos, _, _ in raw:
+                if other != bid and opos[2] > pos[2] + 0.5 * h and np.hypot(
+                    *(pos[:2] - opos[:2])
+                ) < footprint:
+                    covered.add(bid)
+        result = []
+        for bid, pos, quat, rot in sorted(raw, key=lambda r: list(self.blocks).index(r[0])):
+            up = rot[:, 2] if abs(rot[2, 2]) > 0.5 else np.array([0.0, 0.0, 1.0])
+            top = pos + np.sign(up[2]) * up * (h / 2)
+            ends = self.camera.project(np.array([top, top + rot[:, 0] * (sx / 2)]))
+            uv = ends[0]
+            in_view = bool(self.camera.in_view(top[None, :])[0])
+            angle = math.atan2(ends[1][1] - uv[1], ends[1][0] - uv[0])
+            angle = (angle + math.pi / 2) % math.pi - math.pi / 2
+            result.append(
+                BlockState(
+                    id=bid, color=bid, position=tuple(pos.tolist()), quaternion=tuple(quat),
+                    yaw=_yaw_of(quat), size=tuple(self.cfg.block_size), level=level[bid],
+                    on_top=bid not in covered, visible=in_view and bid not in covered,
+                    tilted=abs(rot[2, 2]) < math.cos(math.radians(10)),
+                    pixel_u=float(uv[0]) if in_view else math.nan,
+                    pixel_v=float(uv[1]) if in_view else math.nan,
+                    pixel_angle=angle if in_view else math.nan,
+                    support=support.get(bid, ""),
+                )
+            )
+        return result
+
+    def stack_height(self, block_id: str) -> int:
+        return {b.id: b.level for b in self.ground_truth()}[block_id]

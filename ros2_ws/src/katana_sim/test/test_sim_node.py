@@ -1,0 +1,199 @@
+"""sim_node in-process: camera, joint_states, actions, reset_world, bad input, parameters."""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from builtin_interfaces.msg import Duration
+from katana_description import models as m
+from katana_interfaces.action import FollowJointTrajectory, GripperCommand
+from katana_interfaces.msg import BlockArray
+from katana_interfaces.srv import ResetWorld
+from katana_sim.sim_node import SimNode
+from rclpy.action import ActionClient
+from rclpy.context import Context
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image, JointState
+from trajectory_msgs.msg import JointTrajectoryPoint
+
+
+def wait_for(cond, timeout: float = 10.0):
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline, "condition not met in time"
+        threading.Event().wait(0.005)
+    return cond()
+
+
+@pytest.fixture(scope="module")
+def graph():
+    ctx = Context()
+    rclpy.init(context=ctx)
+    sim = SimNode(context=ctx, parameter_overrides=[
+        Parameter("real_time_factor", value=0.0), Parameter("seed", value=5),
+        Parameter("camera_rate", value=20.0)])
+    probe = Node("sim_test_probe", context=ctx)
+    ex = MultiThreadedExecutor(num_threads=6, context=ctx)
+    ex.add_node(sim)
+    ex.add_node(probe)
+    stop = threading.Event()
+
+    def spin():
+        while not stop.is_set():
+            ex.spin_once(timeout_sec=0.05)
+
+    th = threading.Thread(target=spin, daemon=True)
+    th.start()
+    got: dict = {}
+    probe.create_subscription(Image, "camera/image_raw", lambda msg: got.update(image=msg),
+                              qos_profile_sensor_data)
+    probe.create_subscription(CameraInfo, "camera/camera_info", lambda msg: got.update(info=msg),
+                              qos_profile_sensor_data)
+    probe.create_subscription(JointState, "joint_states", lambda msg: got.update(joints=msg), 10)
+    probe.create_subscription(
+        BlockArray, "sim/ground_truth", lambda msg: got.update(truth=msg),
+        QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    arm = ActionClient(probe, FollowJointTrajectory, "arm_controller/follow_joint_trajectory")
+    grip = ActionClient(probe, GripperCommand, "gripper_controller/gripper_command")
+    reset = probe.create_client(ResetWorld, "sim_node/reset_world")
+    yield {"sim": sim, "probe": probe, "got": got, "arm": arm, "grip": grip, "reset": reset}
+    stop.set()
+    th.join(timeout=5)
+    ex.shutdown(timeout_sec=5)
+    sim.destroy_node()
+    probe.destroy_node()
+    rclpy.try_shutdown(context=ctx)
+
+
+def _result(future, timeout: float = 20.0):
+    wait_for(future.done, timeout)
+    return future.result()
+
+
+def _send(client, goal):
+    assert client.wait_for_server(timeout_sec=5.0)
+    handle = _result(client.send_goal_async(goal))
+    assert handle.accepted
+    return _result(handle.get_result_async())
+
+
+def _traj(names, points, times) -> FollowJointTrajectory.Goal:
+    goal = FollowJointTrajectory.Goal()
+    goal.trajectory.joint_names = names
+    goal.trajectory.points = [
+        JointTrajectoryPoint(positions=q, time_from_start=Duration(
+            sec=int(t), nanosec=int((t - int(t)) * 1e9)))
+        for q, t in zip(points, times, strict=True)
+    ]
+    return goal
+
+
+def test_camera_images_and_info(graph):
+    got = graph["got"]
+    wait_for(lambda: "image" in got and "info" in got and "truth" in got)
+    img, info = got["image"], got["info"]
+    assert (img.width, img.height, img.encoding, img.step) == (640, 480, "rgb8", 640 * 3)
+    assert img.header.frame_id == "camera_optical_frame" == info.header.frame_id
+    arr = np.frombuffer(bytes(img.data), np.uint8).reshape(480, 640, 3)
+    k = np.array(info.k).reshape(3, 3)
+    assert np.allclose(k, [[750, 0, 319.5], [0, 750, 239.5], [0, 0, 1]])
+    # every block's projected top centre shows that block's colour
+    for blk in got["truth"].blocks:
+        u, v = round(blk.pixel_u), round(blk.pixel_v)
+        pix = arr[v - 3:v + 4, u - 3:u + 4].reshape(-1, 3).mean(axis=0)
+        ref = np.array(m.COLOURS[blk.color][:3]) * 255
+        cos = pix @ ref / (np.linalg.norm(pix) * np.linalg.norm(ref))
+        assert cos > 0.97, (blk.color, pix, ref)
+
+
+def test_joint_states_carry_seven_joints(graph):
+    got = graph["got"]
+    wait_for(lambda: "joints" in got)
+    js = got["joints"]
+    assert list(js.name) == list(m.ALL_JOINTS)
+    assert len(js.position) == len(js.velocity) == 7
+    assert abs(js.position[5] - js.position[6]) < 1e-3
+
+
+def test_trajectory_and_gripper_actions(graph):
+    got = graph["got"]
+    target = [0.3, 1.2, -1.5, 1.2, 0.4]
+    res = _send(graph["arm"], _traj(list(m.ARM_JOINTS), [target], [4.0]))
+    assert res.result.error_code == 0, res.result.error_string
+    wait_for(lambda: np.allclose(got["joints"].position[:5], target, atol=0.01))
+    res = _send(graph["grip"], GripperCommand.Goal())  # position 0, default effort
+    assert res.result.reached_goal and abs(res.result.position) < 0.011
+
+
+@pytest.mark.parametrize(
+    ("names", "points", "times", "code", "why"),
+    [
+        (["katana_motor1_pan_joint"], [[math.nan]], [1.0], -1, "not finite"),
+        (["no_such_joint"], [[0.0]], [1.0], -2, "unknown"),
+        (["katana_motor2_lift_joint"], [[2.5]], [5.0], -1, "outside"),
+        (["katana_motor1_pan_joint"], [[2.8]], [0.2], -1, "rad/s"),
+        ([], [], [], -2, "no joint names"),
+    ],
+)
+def test_bad_trajectories_are_refused_and_the_node_goes_on(graph, names, points, times, code,
+                                                           why):
+    res = _send(graph["arm"], _traj(names, points, times))
+    assert res.result.error_code == code and why in res.result.error_string
+    assert res.status == 6  # ABORTED, with the reason in the result
+    ok = _send(graph["arm"], _traj(["katana_motor1_pan_joint"], [[0.1]], [2.0]))
+    assert ok.result.error_code == 0
+
+
+def test_bad_gripper_goal_is_refused(graph):
+    goal = GripperCommand.Goal()
+    goal.command.position = 1.5
+    res = _send(graph["grip"], goal)
+    assert res.status == 6 and not res.result.reached_goal
+
+
+def test_reset_world_scatters_again(graph):
+    got = graph["got"]
+    wait_for(lambda: "truth" in got)
+    cli = graph["reset"]
+    assert cli.wait_for_service(timeout_sec=5.0)
+    resp = _result(cli.call_async(ResetWorld.Request(seed=42)))
+    assert resp.success and "seed 42" in resp.message
+    wait_for(lambda: graph["sim"].world.last_seed == 42)
+    sim = graph["sim"]
+    first = [(b.pose.position.x, b.pose.position.y) for b in sim.ground_truth_msg().blocks]
+    resp = _result(cli.call_async(ResetWorld.Request(seed=-1)))
+    assert resp.success
+    second = [(b.pose.position.x, b.pose.position.y) for b in sim.ground_truth_msg().blocks]
+    assert not np.allclose(first, second)
+    assert all(b.level == 1 and b.visible for b in graph["sim"].ground_truth_msg().blocks)
+
+
+@pytest.mark.parametrize(
+    ("param", "value"),
+    [
+        ("num_blocks", 9),
+        ("block_colors", ["red"] * 8),
+        ("physics_rate", -5.0),
+        ("real_time_factor", -1.0),
+        ("block_size", [0.04, 0.04]),
+    ],
+)
+def test_invalid_parameters_stop_the_node_naming_them(param, value):
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        overrides = [Parameter(param, value=value)]
+        if param == "block_colors":
+            overrides.append(Parameter("num_blocks", value=8))
+        with pytest.raises(Exception, match=param):
+            SimNode(context=ctx, parameter_overrides=overrides)
+    finally:
+        rclpy.try_shutdown(context=ctx)

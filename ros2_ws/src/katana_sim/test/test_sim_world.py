@@ -1,0 +1,238 @@
+"""The ROS-free PyBullet world: rendering, scatter, stability from physics, motors, validation."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pybullet as p
+import pytest
+from katana_description import models as m
+from katana_sim.core import CameraModel, ConfigError, SimConfig, SimWorld, TrajectoryGoal
+from katana_sim.core import controllers as ctl
+
+
+@pytest.fixture(scope="module")
+def world():
+    w = SimWorld(SimConfig(num_blocks=4, seed=1))
+    yield w
+    w.close()
+
+
+def _colour_centroids(img: np.ndarray) -> dict[str, tuple[float, float, int]]:
+    """Centroid (u, v) and pixel count of each block colour, by nearest table colour in RGB
+    (an independent check of where the renderer drew each block)."""
+    out = {}
+    for name in m.DEFAULT_COLOURS:
+        rgb = np.array(m.COLOURS[name][:3]) * 255
+        # shading scales the colour: compare normalised chromaticity and require saturation
+        pix = img.reshape(-1, 3).astype(float)
+        norm = pix / np.maximum(pix.sum(axis=1, keepdims=True), 1)
+        ref = rgb / rgb.sum()
+        sat = pix.max(axis=1) - pix.min(axis=1)
+        mask = (np.abs(norm - ref).sum(axis=1) < 0.08) & (sat > 60)
+        mask = mask.reshape(img.shape[:2]).astype(np.uint8)
+        n, labels, stats, cents = cv2.connectedComponentsWithStats(mask)
+        if n > 1:
+            k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+            out[name] = (cents[k][0], cents[k][1], int(stats[k, cv2.CC_STAT_AREA]))
+    return out
+
+
+def test_render_is_640x480_rgb_and_blocks_appear_where_ground_truth_says(world):
+    for seed in (3, 11, 29):
+        world.reset(seed)
+        img = world.render()
+        assert img.shape == (480, 640, 3) and img.dtype == np.uint8
+        found = _colour_centroids(img)
+        for b in world.ground_truth():
+            assert b.visible
+            u, v, area = found[b.id]
+            # top face plus a sliver of the side faces: within 3 px of the projected top centre
+            assert math.hypot(u - b.pixel_u, v - b.pixel_v) < 3.0, (b.id, u, v, b.pixel_u)
+            # a 40 x 40 mm top at 0.72 m with f = 750 px is about 41.7 px on a side
+            assert 1500 < area < 2300, (b.id, area)
+
+
+def test_camera_model_matches_rendering_off_centre():
+    cam = CameraModel(position=(0.25, 0.05, 0.6), rpy=(math.pi, 0.1, -math.pi / 2 + 0.3),
+                      focal_px=600.0)
+    w = SimWorld(SimConfig(num_blocks=1, camera=cam))
+    try:
+        w.set_block_pose("red", (0.3, 0.08, 0.015), 0.2)
+        w.step(10)
+        b = w.ground_truth()[0]
+        u, v, _ = _colour_centroids(w.render())["red"]
+        assert math.hypot(u - b.pixel_u, v - b.pixel_v) < 3.0
+        # pixel_to_plane inverts project
+        xyz = cam.pixel_to_plane(b.pixel_u, b.pixel_v, 0.03)
+        assert np.allclose(xyz[:2], b.position[:2], atol=1e-6)
+    finally:
+        w.close()
+
+
+def test_reset_scatters_valid_visible_and_seeded(world):
+    """(That every scattered block can be picked is checked with the kinematics in
+    katana_manipulation's tests.)"""
+    cfg = world.cfg
+    diag = math.hypot(*cfg.block_size[:2])
+    for seed in range(40):
+        blocks = world.reset(seed)
+        pos = np.array([b.position for b in blocks])
+        for b in blocks:
+            x, y, z = b.position
+            assert b.level == 1 and b.on_top and b.visible and not b.tilted
+            assert abs(z - cfg.block_size[2] / 2) < 1e-3
+            assert cfg.play_radius[0] <= math.hypot(x, y) <= cfg.play_radius[1]
+            assert 0 <= b.pixel_u < 640 and 0 <= b.pixel_v < 480
+        d = np.linalg.norm(pos[:, None, :2] - pos[None, :, :2], axis=2) + np.eye(len(pos))
+        assert d.min() >= diag + cfg.min_gap - 1e-9
+    a = [b.position for b in world.reset(5)]
+    b = [b.position for b in world.reset(5)]
+    assert np.allclose(a, b)
+
+
+def test_eight_blocks_scatter():
+    w = SimWorld(SimConfig(num_blocks=8, seed=4))
+    try:
+        blocks = w.ground_truth()
+        assert len(blocks) == 8 and len({b.color for b in blocks}) == 8
+        assert all(b.visible and b.level == 1 for b in blocks)
+    finally:
+        w.close()
+
+
+def test_square_stack_stays_and_offset_block_falls(world):
+    world.reset(2)
+    # squarely on top: stays, level 2, in place
+    world.stack("green", on="red", dx=0.0, dy=0.0)
+    before = world.block_pose("green")[0]
+    assert world.settle(max_time=3.0)
+    world.step(int(1.0 / world.dt))
+    truth = {b.id: b for b in world.ground_truth()}
+    assert truth["green"].level == 2 and truth["green"].support == "red"
+    assert not truth["red"].on_top and not truth["red"].visible
+    assert np.linalg.norm(world.block_pose("green")[0] - before) < 2e-3
+    # 70 % of its footprint over the edge: its centre of mass is unsupported, so it falls
+    world.reset(2)
+    world.stack("green", on="red", dx=0.028, dy=0.0, yaw=world.ground_truth()[0].yaw)
+    world.settle(max_time=3.0)
+    truth = {b.id: b for b in world.ground_truth()}
+    assert truth["green"].level == 1
+    assert truth["red"].on_top
+
+
+def test_trajectory_reaches_target_within_tolerance_and_speed_limits(world):
+    world.reset(0)
+    # top-down at (0.2, 0.05, 0.09), yaw 0.3 (KatanaKinematics.ik_top_down)
+    target = np.array([0.244979, 1.20566, -1.106029, 1.670427, 0.055021])
+    start = np.array([world.joint_positions()[n] for n in m.ARM_JOINTS])
+    dur = 1.5 * float(np.max(np.abs(target - start) / kin_speed()))
+    h = world.start_trajectory(TrajectoryGoal(list(m.ARM_JOINTS), [dur * 0.6, dur * 1.2],
+                                              [list((start + target) / 2), list(target)]))
+    vmax = np.zeros(5)
+    while not h.outcome.done:
+        world.step(4)
+        _, vel, _ = world.joint_state()
+        vmax = np.maximum(vmax, np.abs(vel[:5]))
+    assert h.outcome.status == ctl.SUCCEEDED, h.outcome
+    q = np.array([world.joint_positions()[n] for n in m.ARM_JOINTS])
+    assert np.all(np.abs(q - target) <= 0.005)
+    assert np.all(vmax <= kin_speed() * 1.05), (vmax, kin_speed())
+    assert np.linalg.norm(world.tool_pose()[0] - [0.2, 0.05, 0.09]) < 0.002
+
+
+def kin_speed() -> np.ndarray:
+    return np.array([m.JOINT_MAX_SPEED[n] for n in m.ARM_JOINTS])
+
+
+@pytest.mark.parametrize(
+    ("names", "points", "times", "code", "why"),
+    [
+        (["katana_motor1_pan_joint"], [[math.nan]], [1.0], ctl.INVALID_GOAL, "not finite"),
+        (["bogus_joint"], [[0.0]], [1.0], ctl.INVALID_JOINTS, "unknown"),
+        (["katana_r_finger_joint"], [[0.0]], [1.0], ctl.INVALID_JOINTS, "non-arm"),
+        (["katana_motor2_lift_joint"], [[3.0]], [5.0], ctl.INVALID_GOAL, "outside"),
+        (["katana_motor1_pan_joint"], [[2.5]], [0.5], ctl.INVALID_GOAL, "rad/s"),
+        (["katana_motor1_pan_joint"], [[0.0], [0.1]], [2.0, 1.0], ctl.INVALID_GOAL, "increase"),
+    ],
+)
+def test_bad_trajectories_are_refused_with_a_reason(world, names, points, times, code, why):
+    world.reset(0)
+    h = world.start_trajectory(TrajectoryGoal(names, times, points))
+    assert h.outcome.done and h.outcome.error_code == code and why in h.outcome.message
+    assert not world.busy
+
+
+def test_gripper_holds_a_block_by_friction_only(world):
+    world.reset(0)
+    world.set_block_pose("red", (0.2, 0.0, 0.015), 0.0)
+    q = [0.0, 1.177257, -1.593299, 1.154754, 0.0]  # tool top-down at (0.2, 0, 0.018)
+    world.set_arm_positions(q, 0.0)
+    world.step(20)
+    h = world.start_gripper(m.GRIPPER_CLOSED)
+    while not h.outcome.done:
+        world.step(6)
+    assert h.outcome.stalled and not h.outcome.reached_goal
+    assert abs(h.outcome.position - m.finger_angle_for_opening(0.04)) < 0.02
+    # the only constraint in the world is the gear coupling the two fingers
+    n = p.getNumConstraints(physicsClientId=world._cid)
+    assert n == 1
+    info = p.getConstraintInfo(p.getConstraintUniqueId(0, physicsClientId=world._cid),
+                               physicsClientId=world._cid)
+    assert info[0] == info[2] == world.arm and info[4] == p.JOINT_GEAR
+    up = [0.0, 1.243947, -1.24856, 1.566184, 0.0]  # 6 cm higher
+    h = world.start_trajectory(TrajectoryGoal(list(m.ARM_JOINTS), [1.0], [up]))
+    while not h.outcome.done:
+        world.step(6)
+    z = world.block_pose("red")[0][2]
+    assert z > 0.015 + 0.05, z  # lifted with the hand
+    # open: it drops back onto the table
+    h = world.start_gripper(m.GRIPPER_OPEN)
+    while not h.outcome.done:
+        world.step(6)
+    world.settle()
+    assert abs(world.block_pose("red")[0][2] - 0.015) < 2e-3
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "param"),
+    [
+        ({"num_blocks": 9}, "num_blocks"),
+        ({"num_blocks": 8, "block_colors": ("red",) * 8}, "block_colors"),
+        ({"block_colors": ("red", "mauve", "blue", "green")}, "block_colors"),
+        ({"physics_rate": -10.0}, "physics_rate"),
+        ({"block_size": (0.04, 0.04)}, "block_size"),
+        ({"model": "450_6m90a"}, "model"),
+    ],
+)
+def test_invalid_config_names_the_parameter(kwargs, param):
+    with pytest.raises(ConfigError) as err:
+        SimConfig(**kwargs).validate()
+    assert err.value.param == param and param in str(err.value)
+
+
+def test_parked_arm_is_out_of_the_camera_view(world):
+    """The renderer's own segmentation: no pixel shows the arm beyond its base and pan link."""
+    world.reset(0)
+    world.set_arm_positions(m.PARK_POSE, m.GRIPPER_OPEN)
+    cam = world.camera
+    _, _, _, _, seg = p.getCameraImage(
+        cam.width, cam.height, cam.view_matrix(), cam.projection_matrix(),
+        renderer=p.ER_TINY_RENDERER, flags=p.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
+        physicsClientId=world._cid)
+    seg = np.asarray(seg).reshape(cam.height, cam.width)
+    body = seg & ((1 << 24) - 1)
+    link = (seg >> 24) - 1
+    arm_pixels = (seg >= 0) & (body == world.arm)
+    moving = arm_pixels & (link >= world.joint_index["katana_motor2_lift_joint"])
+    assert not moving.any()
+    # and the check can fail: with the arm over the table, its links are in the image
+    world.set_arm_positions([0.0, 1.234239, -1.075592, 1.729443, 0.0])  # tool at (0.2, 0, 0.1)
+    _, _, _, _, seg = p.getCameraImage(
+        cam.width, cam.height, cam.view_matrix(), cam.projection_matrix(),
+        renderer=p.ER_TINY_RENDERER, flags=p.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
+        physicsClientId=world._cid)
+    seg = np.asarray(seg).reshape(cam.height, cam.width)
+    assert ((seg >= 0) & ((seg & ((1 << 24) - 1)) == world.arm) & ((seg >> 24) - 1 >= 1)).any()
