@@ -1,0 +1,103 @@
+"""Speed of the perception core: segmentation of one 640x480 frame, fovea/observe of a
+4-block setting, and one placement judgement. `run()` returns the figures (milliseconds,
+median over repetitions); run as a script it also writes bench/results/perception.json."""
+
+from __future__ import annotations
+
+import json
+import statistics
+import time
+from pathlib import Path
+
+from katana_perception.core.calibration import Calibration
+from katana_perception.core.fovea import FoveaScene
+from katana_perception.core.judge import Judge, Placement
+from katana_perception.core.memory import Block
+from katana_perception.core.segmentation import Segmenter
+from katana_perception.core.synthetic import Renderer, stack_block
+
+
+def _median_ms(fn, repeat: int, warmup: int = 3) -> float:
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t0) * 1000.0)
+    return statistics.median(times)
+
+
+def _frames():
+    """Frames of four blocks before and after red is put on a stack of two, and the memory
+    of the before scene: from the PyBullet sim when installed, else the synthetic renderer."""
+    try:
+        from katana_sim.core import SimConfig, SimWorld
+    except ImportError:
+        calib = Calibration.overhead_default()
+        before = [stack_block("red", 0.17, 0.09, 1, 0.2), stack_block("green", 0.26, -0.1, 1),
+                  stack_block("blue", 0.26, -0.1, 2, 0.1), stack_block("yellow", 0.2, 0.0, 1)]
+        after = before[1:] + [stack_block("red", 0.263, -0.1, 3, 0.1)]
+        r = Renderer(calib)
+        memory = [Block(b.name, b.name, b.x, b.y, b.yaw, level=b.level,
+                        support="green" if b.name == "blue" else None) for b in before]
+        return "synthetic", calib, r.render(before)[0], r.render(after)[0], memory
+    world = SimWorld(SimConfig(num_blocks=4, seed=1))
+    try:
+        cam = world.camera
+        calib = Calibration.from_camera_rpy(cam.K, cam.position, cam.rpy, cam.width, cam.height)
+        world.stack("blue", on="green")
+        world.settle()
+        memory = [Block(b.id, b.id, b.position[0], b.position[1], b.yaw, level=b.level,
+                        support=b.support or None) for b in world.ground_truth()]
+        before = world.render()
+        world.stack("red", on="blue", dx=0.003)
+        world.settle()
+        return "pybullet", calib, before, world.render(), memory
+    finally:
+        world.close()
+
+
+def run() -> dict:
+    source, calib, before_rgb, after_rgb, blocks = _frames()
+    seg = Segmenter()
+    levels = {b.id: b.level for b in blocks}
+    perception_ms = _median_ms(lambda: seg.segment(before_rgb, calib, levels), repeat=200)
+    eight = Renderer(calib).render(
+        [stack_block(n, x, y, 1, 0.3 * i) for i, (n, x, y) in enumerate(
+            [("red", 0.16, 0.1), ("green", 0.28, 0.1), ("blue", 0.16, -0.1),
+             ("yellow", 0.28, -0.1), ("orange", 0.22, 0.0), ("purple", 0.22, 0.13),
+             ("cyan", 0.22, -0.13), ("magenta", 0.16, 0.0)])])[0]
+    perception_8_ms = _median_ms(lambda: seg.segment(eight, calib), repeat=200)
+
+    n_instances = len(FoveaScene(blocks, calib).observe())
+    observe_ms = _median_ms(lambda: FoveaScene(blocks, calib).observe(), repeat=20)
+
+    judge = Judge(seg, calib)
+    top = next(b for b in blocks if b.id == "blue")
+    placement = Placement(2, top.x + 0.003, top.y, ("green", "blue"))
+
+    def judge_once() -> int:
+        return judge.judge(judge.snapshot(before_rgb, blocks), after_rgb, "red", placement).label
+
+    label = judge_once()
+    judge_ms = _median_ms(judge_once, repeat=50)
+    return {
+        "perception_ms": round(perception_ms, 3),
+        "perception_target_ms": 10.0,
+        "perception_8_blocks_ms": round(perception_8_ms, 3),
+        "observe_ms": round(observe_ms, 3),
+        "observe_instances": n_instances,
+        "judge_ms": round(judge_ms, 3),
+        "judge_label": int(label),
+        "frames": source,
+        "image": f"{before_rgb.shape[1]}x{before_rgb.shape[0]}",
+    }
+
+
+if __name__ == "__main__":
+    result = run()
+    out = Path(__file__).resolve().parent / "results" / "perception.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(result, indent=2))

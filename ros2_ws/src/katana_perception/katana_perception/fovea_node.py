@@ -1,0 +1,247 @@
+"""fovea_node: the instances of the current setting and the top-down fovea search.
+
+Subscribes world/blocks (transient local), camera/camera_info and camera/image_raw (sensor
+data; the image is used only with mask_source "image"). Serves fovea/observe (every distinct
+state-action pair of the setting, in scan order) and fovea/find_placement (a fovea location
+realising a planned pair). Publishes fovea/markers: the fovea squares of the last answer.
+"""
+
+from __future__ import annotations
+
+import colorsys
+import math
+import sys
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import Point
+from katana_interfaces.msg import BlockArray
+from katana_interfaces.srv import FindPlacement, ObserveSetting
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import ColorRGBA, Header
+from visualization_msgs.msg import Marker, MarkerArray
+
+from .conversions import (
+    blocks_from_msg,
+    calibration_from_camera_info,
+    image_to_rgb,
+    instance_to_msg,
+)
+from .core.colors import color_table_strings, parse_color_table
+from .core.fovea import N_ACTIONS, FoveaParams, FoveaScene, Instance, NotFound
+from .core.segmentation import Segmenter
+from .params import ParameterError, declare, declare_scene, require_length
+
+STATE_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                       reliability=ReliabilityPolicy.RELIABLE)
+
+
+class FoveaNode(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("fovea_node", **kwargs)
+        scene = declare_scene(self)
+        self.world_frame = scene["world_frame"]
+        self.block_size = tuple(scene["block_size"])
+        self.camera_position = scene["camera_position"]
+        self.camera_rpy = scene["camera_rpy"]
+        self.extrinsics_file = scene["extrinsics_file"]
+        size = declare(self, "fovea_size_px", 40, "Fovea window edge, px (4..200).", 4, 200)
+        self.fovea = FoveaParams(
+            size_px=size,
+            offset_px=declare(self, "point_offset_px", 10.0,
+                              "r: the outer test points sit at (+-r, +-r) px (0.5..99).",
+                              0.5, 99.0),
+            grid_step_px=declare(self, "grid_step_px", 6.0,
+                                 "Fovea grid step around a stack top, px (0.5..100).", 0.5, 100.0),
+            grid_radius_px=declare(self, "grid_radius_px", 36.0,
+                                   "Fovea grid half-width around a stack top, px (0..200).",
+                                   0.0, 200.0),
+            fine_step_px=declare(self, "fine_step_px", 2.0,
+                                 "find_placement's second, finer grid step, px (0.5..100).",
+                                 0.5, 100.0),
+            table_step_m=declare(self, "table_step", 0.02,
+                                 "Grid of candidate table places, m (0.002..0.2).", 0.002, 0.2),
+            reach_min=declare(self, "reach_min", 0.14,
+                              "Nearest placement to the pan axis, m (0..1).", 0.0, 1.0),
+            reach_max=declare(self, "reach_max", 0.29,
+                              "Farthest placement from the pan axis, m (0..1).", 0.0, 1.0),
+            area_x=tuple(require_length("play_x", declare(
+                self, "play_x", [0.14, 0.30], "Play area x interval, m (-2..2).", -2.0, 2.0), 2)),
+            area_y=tuple(require_length("play_y", declare(
+                self, "play_y", [-0.16, 0.16], "Play area y interval, m (-2..2).", -2.0, 2.0), 2)),
+            clearance=declare(self, "clearance", 0.005,
+                              "Free margin around a placed block, m (0..0.1).", 0.0, 0.1),
+            max_state=declare(self, "max_state", 3,
+                              "Highest stack offered for placement (0..32).", 0, 32),
+            table_yaw=declare(self, "table_yaw", 0.0,
+                              "Yaw of blocks placed on the table, rad (-pi..pi).",
+                              -math.pi, math.pi),
+        )
+        try:
+            self.fovea.validate()
+        except ValueError as err:
+            raise ParameterError(str(err)) from err
+        self.mask_source = declare(
+            self, "mask_source", "memory",
+            "'memory': block pixels are the remembered top faces re-projected; 'image': visible "
+            "top blocks use their segmented pixels from camera/image_raw.")
+        if self.mask_source not in ("memory", "image"):
+            raise ParameterError(f"parameter 'mask_source': {self.mask_source!r} is not "
+                                 "'memory' or 'image'")
+        table = declare(self, "color_table", color_table_strings(),
+                        "Colour table for mask_source 'image' (see perception_node).")
+        try:
+            self.segmenter = Segmenter(parse_color_table(table), block_size=self.block_size)
+        except ValueError as err:
+            raise ParameterError(f"parameter 'color_table': {err}") from err
+
+        self.calibration = None
+        self.blocks = None
+        self.rgb = None
+        self.setting = 0
+        self._key = None
+        self._scene: FoveaScene | None = None
+        self.pub_markers = self.create_publisher(MarkerArray, "fovea/markers", 10)
+        self.create_subscription(BlockArray, "world/blocks", self.on_blocks, STATE_QOS)
+        self.create_subscription(CameraInfo, "camera/camera_info", self.on_camera_info,
+                                 qos_profile_sensor_data)
+        self.create_subscription(Image, "camera/image_raw", self.on_image, qos_profile_sensor_data)
+        self.create_service(ObserveSetting, "fovea/observe", self.on_observe)
+        self.create_service(FindPlacement, "fovea/find_placement", self.on_find)
+
+    # ------------------------------------------------------------------ inputs
+    def on_camera_info(self, msg: CameraInfo) -> None:
+        try:
+            self.calibration = calibration_from_camera_info(
+                msg, self.camera_position, self.camera_rpy, self.extrinsics_file)
+        except ValueError as err:
+            self.get_logger().warn(f"camera_info rejected: {err}", throttle_duration_sec=5.0)
+
+    def on_image(self, msg: Image) -> None:
+        if self.mask_source != "image":
+            return
+        try:
+            self.rgb = image_to_rgb(msg)
+        except ValueError as err:
+            self.get_logger().warn(f"image rejected: {err}", throttle_duration_sec=5.0)
+
+    def on_blocks(self, msg: BlockArray) -> None:
+        try:
+            blocks = blocks_from_msg(msg)
+        except ValueError as err:
+            self.get_logger().warn(f"world/blocks rejected: {err}")
+            return
+        key = sorted((b.id, b.level, b.support) for b in blocks)
+        poses = {b.id: (b.x, b.y) for b in blocks}
+        if self._key is None or key != self._key[0] or any(
+            math.hypot(x - self._key[1][i][0], y - self._key[1][i][1]) > 0.003
+            for i, (x, y) in poses.items()
+        ):
+            self.setting += 1
+            self._key = (key, poses)
+            self._scene = None
+        self.blocks = blocks
+
+    # ------------------------------------------------------------------ services
+    def _current_scene(self) -> FoveaScene:
+        if self.blocks is None:
+            raise NotFound("no world/blocks received yet")
+        if self.calibration is None:
+            raise NotFound("no camera/camera_info received yet")
+        if self._scene is None or self.mask_source == "image":
+            masks = None
+            if self.mask_source == "image":
+                if self.rgb is None:
+                    raise NotFound("mask_source is 'image' but no image received yet")
+                on_top = {b.id for b in self.blocks if b.on_top}
+                dets = self.segmenter.segment(self.rgb, self.calibration,
+                                              {b.id: b.level for b in self.blocks})
+                masks = {d.color: d.full_mask(self.rgb.shape[:2])
+                         for d in dets if d.complete and d.color in on_top}
+            self._scene = FoveaScene(self.blocks, self.calibration, self.fovea, masks)
+        return self._scene
+
+    def on_observe(self, req: ObserveSetting.Request, res: ObserveSetting.Response):
+        try:
+            scene = self._current_scene()
+        except NotFound as err:
+            res.success, res.message = False, str(err)
+            return res
+        insts = scene.observe(max_state=int(req.max_state))
+        res.success = True
+        res.setting = self.setting
+        res.instances = [instance_to_msg(i) for i in insts]
+        res.message = (f"{len(insts)} instances over states "
+                       f"{sorted({i.state for i in insts})}")
+        self.publish_markers(insts)
+        return res
+
+    def on_find(self, req: FindPlacement.Request, res: FindPlacement.Response):
+        try:
+            inst = self._current_scene().find(int(req.state), int(req.action))
+        except NotFound as err:
+            res.found, res.message = False, str(err)
+            self.get_logger().info(f"find_placement({req.state}, {req.action}): {err}")
+            return res
+        res.found, res.message, res.instance = True, "found", instance_to_msg(inst)
+        self.publish_markers([inst])
+        return res
+
+    # ------------------------------------------------------------------ markers
+    def publish_markers(self, insts: list[Instance]) -> None:
+        if self.pub_markers.get_subscription_count() == 0 or self.calibration is None:
+            return
+        header = Header(frame_id=self.world_frame, stamp=self.get_clock().now().to_msg())
+        out = MarkerArray(markers=[Marker(header=header, ns="fovea", action=Marker.DELETEALL)])
+        half = self.fovea.size_px / 2.0
+        h = self.block_size[2]
+        for k, inst in enumerate(insts):
+            c, s = math.cos(inst.angle), math.sin(inst.angle)
+            corners = np.array([[-half, -half], [half, -half], [half, half], [-half, half],
+                                [-half, -half]])
+            us = inst.u + corners[:, 0] * c - corners[:, 1] * s
+            vs = inst.v + corners[:, 0] * s + corners[:, 1] * c
+            z = inst.state * h + 0.001
+            xs, ys = self.calibration.pixel_to_world(us, vs, np.full(len(us), z))
+            r, g, b = colorsys.hsv_to_rgb((inst.action - 1) / N_ACTIONS, 0.9, 1.0)
+            colour = ColorRGBA(r=r, g=g, b=b, a=1.0)
+            square = Marker(header=header, ns="fovea", id=2 * k, type=Marker.LINE_STRIP,
+                            action=Marker.ADD, color=colour)
+            square.scale.x = 0.001
+            square.pose.orientation.w = 1.0
+            square.points = [Point(x=float(x), y=float(y), z=z) for x, y in zip(xs, ys,
+                                                                                 strict=True)]
+            text = Marker(header=header, ns="fovea", id=2 * k + 1, type=Marker.TEXT_VIEW_FACING,
+                          action=Marker.ADD, color=colour, text=f"s{inst.state} a{inst.action}")
+            text.scale.z = 0.008
+            text.pose.position.x, text.pose.position.y = inst.x, inst.y
+            text.pose.position.z = inst.z + 0.02
+            text.pose.orientation.w = 1.0
+            out.markers += [square, text]
+        self.pub_markers.publish(out)
+
+
+def main(args: list[str] | None = None) -> None:
+    rclpy.init(args=args)
+    try:
+        node = FoveaNode()
+    except (ParameterError, ValueError) as err:
+        rclpy.logging.get_logger("fovea_node").fatal(str(err))
+        rclpy.try_shutdown()
+        sys.exit(1)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,229 @@
+"""perception_node: overhead image -> visible blocks; the placement outcome judge.
+
+Subscribes camera/image_raw and camera/camera_info (sensor-data QoS) and world/blocks
+(transient local: the remembered levels, so a block on a stack is located on the right
+plane, and the "before" memory of the judge). Publishes perception/detections
+(katana_interfaces/BlockArray of the blocks seen in the image; `on_top` means its top face is
+in full view, `level` is the level it was located at) and perception/debug_image. Serves
+perception/judge_placement: PHASE_BEFORE keeps the current image and memory, PHASE_AFTER
+judges the newest image against them.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import cv2
+import numpy as np
+import rclpy
+from katana_interfaces.msg import BlockArray
+from katana_interfaces.srv import JudgePlacement
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Header
+
+from .conversions import (
+    blocks_from_msg,
+    calibration_from_camera_info,
+    detection_to_msg,
+    image_to_rgb,
+    placement_from_msg,
+    rgb_to_image,
+)
+from .core.colors import color_table_strings, parse_color_table
+from .core.judge import Judge, JudgeParams
+from .core.segmentation import Segmenter
+from .params import ParameterError, declare, declare_scene
+
+STATE_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                       reliability=ReliabilityPolicy.RELIABLE)
+
+
+class PerceptionNode(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("perception_node", **kwargs)
+        scene = declare_scene(self)
+        self.world_frame = scene["world_frame"]
+        self.block_size = tuple(scene["block_size"])
+        self.camera_position = scene["camera_position"]
+        self.camera_rpy = scene["camera_rpy"]
+        self.extrinsics_file = scene["extrinsics_file"]
+        table = declare(self, "color_table", color_table_strings(),
+                        "One entry per block colour, 'name:lo-hi[,lo-hi]' hue intervals on "
+                        "OpenCV's 0..179 scale; the name is the block id.")
+        try:
+            colors = parse_color_table(table)
+        except ValueError as err:
+            raise ParameterError(f"parameter 'color_table': {err}") from err
+        self.segmenter = Segmenter(
+            colors,
+            s_min=declare(self, "saturation_min", 80,
+                          "Minimum HSV saturation of a block pixel (0..255).", 0, 255),
+            v_min=declare(self, "value_min", 40,
+                          "Minimum HSV value of a block pixel (0..255).", 0, 255),
+            min_area_px=declare(self, "min_area_px", 120,
+                                "Smallest blob taken for a block, px (1..100000).", 1, 100000),
+            min_inscribed_px=declare(
+                self, "min_inscribed_px", 6.0,
+                "A blob must contain a disc of this radius, px; thinner ones are side faces "
+                "of covered blocks (0..100).", 0.0, 100.0),
+            block_size=self.block_size,
+            occlusion_threshold=declare(
+                self, "occlusion_threshold", 0.04,
+                "Share of a top face covered by other colours above which a block counts as "
+                "covered (0..1).", 0.0, 1.0),
+        )
+        self.judge_params = JudgeParams(
+            position_tolerance=declare(
+                self, "position_tolerance", 0.015,
+                "Judge: placed block centre vs placement point, m (0.001..0.1).", 0.001, 0.1),
+            support_tolerance=declare(
+                self, "support_tolerance", 0.006,
+                "Judge: how far a partly seen support block's pixels may lie outside where "
+                "it was, m (0.001..0.1).", 0.001, 0.1),
+            changed_fraction=declare(
+                self, "changed_fraction", 0.15,
+                "Judge: share of the stack's former pixels that may change (0..1).", 0.0, 1.0),
+        )
+        self.publish_debug = declare(self, "publish_debug_image", True,
+                                     "Publish perception/debug_image (when someone listens).")
+
+        self.calibration = None
+        self.levels: dict[str, int] = {}
+        self.memory_blocks = []
+        self.latest_rgb: np.ndarray | None = None
+        self.latest_header: Header | None = None
+        self.frames = 0
+        self.before = None  # (snapshot, frame number)
+
+        self.pub_detections = self.create_publisher(BlockArray, "perception/detections", 10)
+        self.pub_debug = self.create_publisher(Image, "perception/debug_image",
+                                               qos_profile_sensor_data)
+        self.create_subscription(Image, "camera/image_raw", self.on_image, qos_profile_sensor_data)
+        self.create_subscription(CameraInfo, "camera/camera_info", self.on_camera_info,
+                                 qos_profile_sensor_data)
+        self.create_subscription(BlockArray, "world/blocks", self.on_world_blocks, STATE_QOS)
+        self.create_service(JudgePlacement, "perception/judge_placement", self.on_judge)
+
+    # ------------------------------------------------------------------ inputs
+    def on_camera_info(self, msg: CameraInfo) -> None:
+        try:
+            calib = calibration_from_camera_info(msg, self.camera_position, self.camera_rpy,
+                                                 self.extrinsics_file)
+        except ValueError as err:
+            self.get_logger().warn(f"camera_info rejected: {err}", throttle_duration_sec=5.0)
+            return
+        if self.calibration is None:
+            self.get_logger().info(f"calibrated: {calib.width}x{calib.height}, "
+                                   f"fx {calib.K[0, 0]:.1f}, camera at {calib.centre.round(3)}")
+        self.calibration = calib
+
+    def on_world_blocks(self, msg: BlockArray) -> None:
+        try:
+            blocks = blocks_from_msg(msg)
+        except ValueError as err:
+            self.get_logger().warn(f"world/blocks rejected: {err}")
+            return
+        self.memory_blocks = blocks
+        self.levels = {b.id: b.level for b in blocks}
+
+    def on_image(self, msg: Image) -> None:
+        try:
+            rgb = image_to_rgb(msg)
+        except ValueError as err:
+            self.get_logger().warn(f"image rejected: {err}", throttle_duration_sec=5.0)
+            return
+        if self.calibration is None:
+            self.get_logger().info("waiting for camera/camera_info", throttle_duration_sec=10.0)
+            return
+        if rgb.shape[:2] != (self.calibration.height, self.calibration.width):
+            self.get_logger().warn(
+                f"image rejected: {rgb.shape[1]}x{rgb.shape[0]} but camera_info says "
+                f"{self.calibration.width}x{self.calibration.height}", throttle_duration_sec=5.0)
+            return
+        self.latest_rgb, self.latest_header = rgb, msg.header
+        self.frames += 1
+        dets = self.segmenter.segment(rgb, self.calibration, self.levels)
+        header = Header(stamp=msg.header.stamp, frame_id=self.world_frame)
+        out = BlockArray(header=header,
+                         blocks=[detection_to_msg(d, self.calibration, self.block_size)
+                                 for d in dets])
+        self.pub_detections.publish(out)
+        if self.publish_debug and self.pub_debug.get_subscription_count() > 0:
+            self.pub_debug.publish(rgb_to_image(self._draw(rgb, dets), msg.header))
+
+    def _draw(self, rgb: np.ndarray, dets) -> np.ndarray:
+        img = rgb.copy()
+        for d in dets:
+            box = cv2.boxPoints(((d.u, d.v), (d.top_px, d.top_px), np.rad2deg(d.angle)))
+            colour = (255, 255, 255) if d.complete else (40, 40, 40)
+            cv2.polylines(img, [np.rint(box).astype(np.int32)], True, colour, 1, cv2.LINE_AA)
+            cv2.circle(img, (int(round(d.u)), int(round(d.v))), 2, colour, -1)
+            cv2.putText(img, f"{d.color} L{d.level}", (int(d.u) + 6, int(d.v) - 6),
+                        cv2.FONT_HERSHEY_SIMPLEX, 0.35, colour, 1, cv2.LINE_AA)
+        return img
+
+    # ------------------------------------------------------------------ judge
+    def on_judge(self, req: JudgePlacement.Request, res: JudgePlacement.Response):
+        res.label = 0
+        before_phase = req.phase == JudgePlacement.Request.PHASE_BEFORE
+        if not before_phase and req.phase != JudgePlacement.Request.PHASE_AFTER:
+            res.success, res.message = False, f"unknown phase {req.phase} (0 before, 1 after)"
+            return res
+        placement = None
+        if not before_phase:
+            if req.placed_block not in self.segmenter.names:
+                res.success = False
+                res.message = (f"placed_block {req.placed_block!r} is not in the colour table "
+                               f"({', '.join(self.segmenter.names)})")
+                return res
+            try:
+                placement = placement_from_msg(req.instance)
+            except ValueError as err:
+                res.success, res.message = False, str(err)
+                return res
+        if self.latest_rgb is None or self.calibration is None:
+            res.success, res.message = False, "no image (or no camera_info) received yet"
+            return res
+        judge = Judge(self.segmenter, self.calibration, self.judge_params)
+        if before_phase:
+            self.before = (judge.snapshot(self.latest_rgb, self.memory_blocks), self.frames)
+            res.success, res.message = True, f"before: image {self.frames} kept"
+            return res
+        if self.before is None:
+            res.success, res.message = False, "no PHASE_BEFORE snapshot to compare with"
+            return res
+        if self.frames <= self.before[1]:
+            res.success, res.message = False, "no new image since PHASE_BEFORE"
+            return res
+        verdict = judge.judge(self.before[0], self.latest_rgb, req.placed_block, placement)
+        self.before = None
+        res.success, res.label, res.message = True, int(verdict.label), verdict.reason
+        self.get_logger().info(f"judged {'stable' if verdict.label > 0 else 'fell'}: "
+                               f"{verdict.reason}")
+        return res
+
+
+def main(args: list[str] | None = None) -> None:
+    rclpy.init(args=args)
+    try:
+        node = PerceptionNode()
+    except (ParameterError, ValueError) as err:
+        rclpy.logging.get_logger("perception_node").fatal(str(err))
+        rclpy.try_shutdown()
+        sys.exit(1)
+    executor = MultiThreadedExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

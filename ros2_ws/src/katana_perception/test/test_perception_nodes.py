@@ -1,0 +1,381 @@
+"""The three nodes in-process: topics, services, bad input, parameter validation, and the
+perception -> memory -> fovea pipeline on rendered images."""
+
+import itertools
+import math
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from katana_interfaces.msg import BlockArray, Experience
+from katana_interfaces.srv import FindPlacement, JudgePlacement, ObserveSetting
+from katana_perception.block_memory_node import BlockMemoryNode
+from katana_perception.conversions import instance_to_msg, rgb_to_image
+from katana_perception.core.calibration import Calibration
+from katana_perception.core.memory import Block
+from katana_perception.core.synthetic import Renderer, stack_block
+from katana_perception.fovea_node import FoveaNode
+from katana_perception.params import ParameterError
+from katana_perception.perception_node import STATE_QOS, PerceptionNode
+from rclpy.context import Context
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Header
+
+CALIB = Calibration.overhead_default()
+_ns = itertools.count()
+SCATTER = [stack_block("red", 0.17, 0.09, 1, 0.2), stack_block("green", 0.26, -0.10, 1, -0.3),
+           stack_block("blue", 0.18, -0.07, 1, 0.5), stack_block("yellow", 0.27, 0.09, 1, 0.0)]
+
+
+class Harness:
+    """One Context, one executor, a namespace of its own, and a helper node."""
+
+    def __init__(self):
+        self.ctx = Context()
+        rclpy.init(context=self.ctx)
+        self.ns = f"/t{next(_ns)}"
+        self.executor = MultiThreadedExecutor(context=self.ctx)
+        self.nodes = []
+        self.helper = self.add(Node("helper", context=self.ctx, namespace=self.ns))
+        self.info_pub = self.helper.create_publisher(CameraInfo, "camera/camera_info",
+                                                     qos_profile_sensor_data)
+        self.image_pub = self.helper.create_publisher(Image, "camera/image_raw",
+                                                      qos_profile_sensor_data)
+        self.renderer = Renderer(CALIB)
+        self.frame = 0
+
+    def add(self, node):
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def make(self, cls, **params):
+        overrides = [Parameter(k, value=v) for k, v in params.items()]
+        return self.add(cls(context=self.ctx, namespace=self.ns, parameter_overrides=overrides))
+
+    def spin_until(self, cond, timeout=15.0):
+        deadline = time.monotonic() + timeout
+        while not cond() and time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.02)
+        return cond()
+
+    def collect(self, msg_type, topic, qos=10):
+        got = []
+        self.helper.create_subscription(msg_type, topic, got.append, qos)
+        return got
+
+    def camera_info(self):
+        m = CameraInfo(width=CALIB.width, height=CALIB.height, distortion_model="plumb_bob")
+        m.header.frame_id = "camera_optical_frame"
+        m.k = CALIB.K.ravel().tolist()
+        m.d = [0.0] * 5
+        m.r = np.eye(3).ravel().tolist()
+        m.p = np.hstack([CALIB.K, np.zeros((3, 1))]).ravel().tolist()
+        self.info_pub.publish(m)
+
+    def image(self, scene, encoding="rgb8"):
+        self.frame += 1
+        rgb, _ = self.renderer.render(scene, seed=self.frame)
+        msg = rgb_to_image(rgb, Header(frame_id="camera_optical_frame"))
+        msg.header.stamp.sec = self.frame
+        if encoding == "bgr8":
+            msg.encoding = "bgr8"
+            msg.data = np.ascontiguousarray(rgb[:, :, ::-1]).tobytes()
+        self.image_pub.publish(msg)
+
+    def call(self, cli, req):
+        assert self.spin_until(cli.service_is_ready)
+        fut = cli.call_async(req)
+        assert self.spin_until(fut.done)
+        return fut.result()
+
+    def close(self):
+        for n in self.nodes:
+            self.executor.remove_node(n)
+            n.destroy_node()
+        self.executor.shutdown()
+        rclpy.shutdown(context=self.ctx)
+
+
+@pytest.fixture
+def ros():
+    h = Harness()
+    yield h
+    h.close()
+
+
+def by_id(msg):
+    return {b.id: b for b in msg.blocks}
+
+
+def test_perception_node_publishes_detections_and_survives_bad_images(ros):
+    ros.make(PerceptionNode)
+    dets = ros.collect(BlockArray, "perception/detections")
+    assert ros.spin_until(lambda: ros.image_pub.get_subscription_count() > 0)
+
+    def feed_until(publish, cond):  # sensor-data QoS may drop: publish until it arrives
+        for _ in range(50):
+            publish()
+            if ros.spin_until(cond, timeout=0.3):
+                return True
+        return False
+
+    # Malformed images: wrong byte count, unknown encoding; nothing comes out, no crash.
+    bad = Image(height=480, width=640, encoding="rgb8", step=1920, data=bytes(100))
+    weird = Image(height=2, width=2, encoding="mono16", step=4, data=bytes(8))
+    ros.camera_info()
+    for _ in range(5):
+        ros.image_pub.publish(bad)
+        ros.image_pub.publish(weird)
+        ros.spin_until(lambda: False, timeout=0.05)
+    assert dets == []
+    assert feed_until(lambda: (ros.camera_info(), ros.image(SCATTER, "bgr8")), lambda: dets)
+    got = by_id(dets[-1])
+    assert set(got) == {"red", "green", "blue", "yellow"}
+    assert dets[-1].header.frame_id == "world"
+    for b in SCATTER:
+        p = got[b.name].pose.position
+        assert math.hypot(p.x - b.x, p.y - b.y) < 0.005
+        assert got[b.name].on_top and got[b.name].visible and got[b.name].level == 1
+
+
+def red_on_green_instance():
+    from katana_perception.core.fovea import Instance, feature_vector
+
+    return instance_to_msg(Instance(
+        state=1, action=6, bits=(True,) * 5, features=feature_vector(6), u=0.0, v=0.0,
+        angle=0.0, x=0.262, y=-0.098, z=0.045, yaw=-0.3, support_ids=("green",)))
+
+
+def test_judge_placement_service(ros):
+    node = ros.make(PerceptionNode)
+    cli = ros.helper.create_client(JudgePlacement, "perception/judge_placement")
+    before = JudgePlacement.Request(phase=JudgePlacement.Request.PHASE_BEFORE)
+    after = JudgePlacement.Request(phase=JudgePlacement.Request.PHASE_AFTER, placed_block="red",
+                                   instance=red_on_green_instance())
+    res = ros.call(cli, after)
+    assert not res.success and "no image" in res.message
+
+    def show(scene):
+        n = node.frames
+        for _ in range(50):
+            ros.camera_info()
+            ros.image(scene)
+            if ros.spin_until(lambda: node.frames > n, timeout=0.3):
+                return
+        raise AssertionError("image never arrived")
+
+    show(SCATTER)
+    res = ros.call(cli, after)
+    assert not res.success and "PHASE_BEFORE" in res.message
+    res = ros.call(cli, before)
+    assert res.success and res.label == 0
+    res = ros.call(cli, after)
+    assert not res.success and "no new image" in res.message
+    for name, req in (("ghost", JudgePlacement.Request(phase=1, placed_block="ghost",
+                                                        instance=red_on_green_instance())),
+                      ("phase", JudgePlacement.Request(phase=7))):
+        res = ros.call(cli, req)
+        assert not res.success and ("not in the colour table" if name == "ghost"
+                                    else "unknown phase") in res.message
+    # red put on green: stable
+    stacked = [b for b in SCATTER if b.name != "red"] + [stack_block("red", 0.262, -0.098, 2,
+                                                                       -0.3)]
+    show(stacked)
+    res = ros.call(cli, after)
+    assert res.success and res.label == 1, res.message
+    res = ros.call(cli, after)  # the before snapshot was used up
+    assert not res.success and "PHASE_BEFORE" in res.message
+    # red put on green but slid off onto the table: fell
+    show(SCATTER)
+    assert ros.call(cli, before).success
+    slid = [b for b in SCATTER if b.name != "red"] + [stack_block("red", 0.21, -0.13, 1, 0.1)]
+    show(slid)
+    res = ros.call(cli, after)
+    assert res.success and res.label == -1 and "mm from the placement" in res.message
+
+
+def detections_msg(scene, levels=None):
+    from katana_perception.conversions import detection_to_msg
+    from katana_perception.core.segmentation import Segmenter
+
+    rgb, _ = Renderer(CALIB).render(scene)
+    dets = Segmenter().segment(rgb, CALIB, levels)
+    return BlockArray(header=Header(frame_id="world"),
+                      blocks=[detection_to_msg(d, CALIB, (0.04, 0.04, 0.03)) for d in dets])
+
+
+def test_block_memory_node(ros):
+    ros.make(BlockMemoryNode)
+    pub = ros.helper.create_publisher(BlockArray, "perception/detections", 10)
+    exp_pub = ros.helper.create_publisher(Experience, "curiosity/experience", 10)
+    world = ros.collect(BlockArray, "world/blocks", STATE_QOS)
+    assert ros.spin_until(lambda: pub.get_subscription_count() > 0)
+    ros.camera_info()
+    scatter = detections_msg(SCATTER)
+    for _ in range(50):
+        ros.camera_info()
+        pub.publish(scatter)
+        if ros.spin_until(lambda: world, timeout=0.3):
+            break
+    got = by_id(world[-1])
+    assert set(got) == {"red", "green", "blue", "yellow"}
+    assert all(b.level == 1 and b.on_top and b.visible for b in got.values())
+    # red onto green: the detections show red over green, green hidden.
+    stacked = [b for b in SCATTER if b.name != "red"] + [stack_block("red", 0.263, -0.1, 2, -0.3)]
+    msg = detections_msg(stacked, {"green": 1, "red": 2})
+    # A broken entry is skipped, the rest is used.
+    broken = BlockArray(header=msg.header, blocks=list(msg.blocks))
+    junk = type(msg.blocks[0])(id="purple", color="purple", pixel_u=math.nan)
+    broken.blocks.append(junk)
+    n = len(world)
+    pub.publish(broken)
+    assert ros.spin_until(lambda: len(world) > n)
+    exp = Experience(label=1, moved_block="red")
+    exp.instance.state = 1
+    exp.instance.support_ids = ["green"]
+    exp.instance.placement.position.x, exp.instance.placement.position.y = 0.263, -0.1
+    n = len(world)
+    exp_pub.publish(exp)
+    assert ros.spin_until(lambda: len(world) > n)
+    got = by_id(world[-1])
+    assert "purple" not in got
+    assert got["red"].level == 2 and not got["green"].on_top and not got["green"].visible
+    assert abs(got["red"].pose.position.z - 0.045) < 1e-9
+    # a late subscriber still gets the state (transient local)
+    late = []
+    ros.helper.create_subscription(BlockArray, "world/blocks", late.append, STATE_QOS)
+    assert ros.spin_until(lambda: late)
+    assert by_id(late[-1])["red"].level == 2
+    # an experience with a nonsense label changes nothing
+    n = len(world)
+    exp_pub.publish(Experience(label=0, moved_block="red"))
+    ros.spin_until(lambda: len(world) > n, timeout=0.5)
+    assert len(world) == n
+
+
+def blocks_msg(blocks):
+    from katana_perception.conversions import blocks_to_msg
+    from katana_perception.core.memory import BlockMemory
+
+    m = BlockMemory(CALIB)
+    m.set_blocks(blocks)
+    return blocks_to_msg(m.snapshot(), Header(frame_id="world"))
+
+
+def test_fovea_node_services(ros):
+    ros.make(FoveaNode)
+    observe = ros.helper.create_client(ObserveSetting, "fovea/observe")
+    find = ros.helper.create_client(FindPlacement, "fovea/find_placement")
+    res = ros.call(observe, ObserveSetting.Request(max_state=255))
+    assert not res.success and "world/blocks" in res.message
+    pub = ros.helper.create_publisher(BlockArray, "world/blocks", STATE_QOS)
+    pub.publish(blocks_msg([Block("red", "red", 0.18, 0.08, 0.3),
+                            Block("green", "green", 0.25, -0.08, -0.2),
+                            Block("blue", "blue", 0.25, -0.08, -0.1, support="green"),
+                            Block("yellow", "yellow", 0.20, 0.0, 0.5)]))
+    ros.camera_info()
+    for _ in range(50):
+        res = ros.call(observe, ObserveSetting.Request(max_state=255))
+        if res.success:
+            break
+        ros.camera_info()
+    assert res.success, res.message
+    states = [i.state for i in res.instances]
+    assert states[0] == 0 and states == sorted(states) and set(states) == {0, 1, 2}
+    for i in res.instances:
+        assert len(i.features) == 7 and i.features[i.action - 1] == 1.0 and len(i.bits) == 5
+        assert len(i.support_ids) == i.state
+    low = ros.call(observe, ObserveSetting.Request(max_state=1))
+    assert {i.state for i in low.instances} == {0, 1} and low.setting == res.setting
+    bad = ros.call(find, FindPlacement.Request(state=5, action=1))
+    assert not bad.found and "height 5" in bad.message
+    bad = ros.call(find, FindPlacement.Request(state=2, action=9))
+    assert not bad.found and "action 9" in bad.message
+    ok = ros.call(find, FindPlacement.Request(state=2, action=6))
+    assert ok.found and list(ok.instance.support_ids) == ["green", "blue"]
+    assert ok.instance.placement.position.z == pytest.approx(0.075)
+
+
+def test_pipeline_image_to_instances(ros):
+    ros.make(PerceptionNode)
+    ros.make(BlockMemoryNode)
+    ros.make(FoveaNode)
+    world = ros.collect(BlockArray, "world/blocks", STATE_QOS)
+    observe = ros.helper.create_client(ObserveSetting, "fovea/observe")
+    scene = SCATTER[1:] + [stack_block("red", 0.185, -0.068, 2, 0.45)]  # red on blue
+    blocks_seen = lambda: world and len(world[-1].blocks) == 4  # noqa: E731
+    for _ in range(80):
+        ros.camera_info()
+        ros.image(SCATTER)
+        if ros.spin_until(blocks_seen, timeout=0.3):
+            break
+    assert blocks_seen()
+    # red is picked and put on blue (no experience message: the memory infers it)
+    for _ in range(80):
+        ros.camera_info()
+        ros.image(scene)
+        if ros.spin_until(lambda: by_id(world[-1])["red"].level == 2, timeout=0.3):
+            break
+    got = by_id(world[-1])
+    assert got["red"].level == 2 and not got["blue"].on_top
+    res = ros.call(observe, ObserveSetting.Request(max_state=255))
+    assert res.success and {i.state for i in res.instances} == {0, 1, 2}
+    assert any(list(i.support_ids) == ["blue", "red"] for i in res.instances)
+
+
+@pytest.mark.parametrize("cls,params,name", [
+    (PerceptionNode, {"saturation_min": 300}, "saturation_min"),
+    (PerceptionNode, {"color_table": ["red:0-7", "red:170-179"]}, "color_table"),
+    (PerceptionNode, {"camera_position": [0.2, 0.0]}, "camera_position"),
+    (PerceptionNode, {"extrinsics_file": "/nonexistent.yaml"}, "extrinsics_file"),
+    (BlockMemoryNode, {"position_tolerance": -1.0}, "position_tolerance"),
+    (BlockMemoryNode, {"block_size": [0.04, 0.04, 5.0]}, "block_size"),
+    (FoveaNode, {"point_offset_px": 30.0}, "offset_px"),
+    (FoveaNode, {"mask_source": "dreams"}, "mask_source"),
+    (FoveaNode, {"max_state": "three"}, "max_state"),
+])
+def test_invalid_parameters_stop_the_node_naming_them(ros, cls, params, name):
+    with pytest.raises(ParameterError, match=name):
+        ros.make(cls, **params)
+
+
+@pytest.mark.parametrize("module,param", [
+    ("katana_perception.perception_node", "value_min:=-5"),
+    ("katana_perception.block_memory_node", "cover_fraction:=7.0"),
+    ("katana_perception.fovea_node", "fovea_size_px:=1"),
+])
+def test_main_exits_non_zero_naming_the_parameter(module, param):
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="OFF")
+    proc = subprocess.run([sys.executable, "-m", module, "--ros-args", "-p", param],
+                          capture_output=True, text=True, timeout=60, env=env)
+    assert proc.returncode == 1
+    assert param.split(":=")[0] in proc.stderr + proc.stdout
+
+
+def test_fovea_node_with_image_masks(ros):
+    ros.make(FoveaNode, mask_source="image")
+    observe = ros.helper.create_client(ObserveSetting, "fovea/observe")
+    pub = ros.helper.create_publisher(BlockArray, "world/blocks", STATE_QOS)
+    pub.publish(blocks_msg([Block(b.name, b.name, b.x, b.y, b.yaw) for b in SCATTER]))
+    res = ros.call(observe, ObserveSetting.Request(max_state=255))
+    assert not res.success
+    for _ in range(50):
+        ros.camera_info()
+        ros.image(SCATTER)
+        res = ros.call(observe, ObserveSetting.Request(max_state=255))
+        if res.success:
+            break
+    assert res.success, res.message
+    assert {i.state for i in res.instances} == {0, 1}
+    assert {tuple(i.support_ids) for i in res.instances if i.state} == {
+        (b.name,) for b in SCATTER}
