@@ -16,10 +16,10 @@ test: setup
 lint: setup
 	@$(ENV) ruff check .
 
+EXPERIMENTS ?= 200
+
 demo: setup
-	@echo "demo: the ROS 2 node graph on the PyBullet sim is not wired yet; running a Q1 exploration"
-	@echo "demo: of the paper's abstract blocks world instead (section 3.1)."
-	@$(ENV) katana-curiosity explore --steps 10000 --out runs/demo
+	@$(ENV) katana-demo --experiments $(EXPERIMENTS)
 
 paper: setup
 	@$(ENV) katana-curiosity paper --jobs $(JOBS) --out runs/paper

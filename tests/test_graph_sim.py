@@ -34,7 +34,8 @@ def _sim_params(**sim):
 
 def test_graph_matches_design_and_stacks_a_block(ros_graph):
     g = ros_graph
-    g.add(*build_nodes("sim", _sim_params(real_time_factor=0.0, seed=3), g.context))
+    g.add(*build_nodes("sim", _sim_params(real_time_factor=0.0, seed=3), g.context,
+                       layers=["arm"]))
     probe = g.node("graph_test_probe")
     truth: dict = {}
     probe.create_subscription(

@@ -23,6 +23,7 @@ setup(
     entry_points={
         "console_scripts": [
             "katana-run = katana_bringup.run:main",
+            "katana-demo = katana_bringup.demo:main",
         ],
     },
 )

@@ -7,7 +7,9 @@ every node) and hands each node its parameters as overrides, then spins every no
 MultiThreadedExecutor. launch/sim.launch.py starts the same nodes, with the same YAML, as
 separate processes for users with a full ROS 2 install.
 
-Extend the graph in `build_nodes` (later issues add perception and curiosity nodes there).
+The graph has three layers: "arm" (the backend's arm and camera nodes, and the pick-and-place
+executor), "perception" (perception, block memory and fovea nodes) and "curiosity" (the
+learner). `--layers` starts a subset, e.g. only the arm for a manipulation check.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import yaml
 
 PACKAGE = "katana_bringup"
 BACKENDS = ("sim", "hardware")
+LAYERS = ("arm", "perception", "curiosity")
 #: threads of the shared executor: action callbacks that wait on other actions each hold one
 EXECUTOR_THREADS = 8
 
@@ -110,25 +113,67 @@ BACKEND_BUILDERS: dict[str, Callable[[dict, Any], list]] = {
 }
 
 
-def build_nodes(backend: str, params: dict[str, dict[str, Any]], context=None) -> list:
-    """Every node of the graph for a backend, constructed in `context` (None: the default).
+def _perception_nodes(params: dict, context) -> list:
+    from katana_perception.block_memory_node import BlockMemoryNode
+    from katana_perception.fovea_node import FoveaNode
+    from katana_perception.perception_node import PerceptionNode
+
+    return [
+        cls(context=context, parameter_overrides=overrides_for(name, params))
+        for cls, name in ((PerceptionNode, "perception_node"),
+                          (BlockMemoryNode, "block_memory_node"), (FoveaNode, "fovea_node"))
+    ]
+
+
+def _curiosity_nodes(params: dict, context) -> list:
+    from katana_curiosity.curiosity_node import CuriosityNode
+
+    return [CuriosityNode(context=context,
+                          parameter_overrides=overrides_for("curiosity_node", params))]
+
+
+def build_nodes(
+    backend: str,
+    params: dict[str, dict[str, Any]],
+    context=None,
+    layers: tuple[str, ...] | list[str] = LAYERS,
+) -> list:
+    """Every node of the chosen layers of the graph for a backend, constructed in `context`.
 
     Nodes whose construction fails (an invalid parameter) raise; nodes built before are
     destroyed first so nothing is left half running."""
     if backend not in BACKEND_BUILDERS:
         raise ValueError(f"backend '{backend}' is unknown; use one of {list(BACKEND_BUILDERS)}")
-    from katana_manipulation.pick_place_executor import PickPlaceExecutor
+    unknown = [layer for layer in layers if layer not in LAYERS]
+    if unknown:
+        raise ValueError(f"unknown layer(s) {unknown}; use some of {list(LAYERS)}")
 
     nodes: list = []
     try:
-        nodes += BACKEND_BUILDERS[backend](params, context)
-        nodes.append(PickPlaceExecutor(
-            context=context, parameter_overrides=overrides_for("pick_place_executor", params)))
+        if "arm" in layers:
+            from katana_manipulation.pick_place_executor import PickPlaceExecutor
+
+            nodes += BACKEND_BUILDERS[backend](params, context)
+            nodes.append(PickPlaceExecutor(
+                context=context,
+                parameter_overrides=overrides_for("pick_place_executor", params)))
+        if "perception" in layers:
+            nodes += _perception_nodes(params, context)
+        if "curiosity" in layers:
+            nodes += _curiosity_nodes(params, context)
     except BaseException:
         for node in nodes:
             node.destroy_node()
         raise
     return nodes
+
+
+def _layers(text: str) -> list[str]:
+    layers = [x.strip() for x in text.split(",") if x.strip()]
+    bad = [x for x in layers if x not in LAYERS]
+    if not layers or bad:
+        raise argparse.ArgumentTypeError(f"choose from {','.join(LAYERS)}, got {text!r}")
+    return layers
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -137,6 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--params", action="append", default=None, metavar="FILE",
                         help="ROS parameter YAML (repeatable; default: config/graph.yaml, "
                         "plus config/sim.yaml for the sim)")
+    parser.add_argument("--layers", type=_layers, default=list(LAYERS), metavar="L[,L]",
+                        help=f"which parts of the graph to start (default: {','.join(LAYERS)})")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="stop after S wall seconds (default: run until Ctrl-C)")
     args, ros_args = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
@@ -155,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
 
     rclpy.init(args=ros_args)
     try:
-        nodes = build_nodes(args.backend, params)
+        nodes = build_nodes(args.backend, params, layers=args.layers)
     except Exception as exc:
         print(f"katana-run: {exc}", file=sys.stderr)
         rclpy.try_shutdown()

@@ -2,6 +2,9 @@
 
     ros2 launch katana_bringup sim.launch.py [backend:=sim|hardware] [params_file:=FILE]
 
+The whole graph of DESIGN.md: the arm (sim or hardware), the pick-and-place executor,
+perception, block memory, fovea and the curiosity node.
+
 Same nodes and the same parameter YAML (config/graph.yaml, config/sim.yaml) as the all-in-one
 runner (`ros2 run katana_bringup katana-run`). backend:=hardware starts katana_driver's arm
 driver and camera node (parameters from katana_driver/config/hardware.yaml) instead of the
@@ -50,5 +53,13 @@ def generate_launch_description() -> LaunchDescription:
              parameters=[hardware_params, params], output="screen", condition=is_hardware),
         Node(package="katana_manipulation", executable="pick_place_executor",
              name="pick_place_executor", parameters=[params], output="screen"),
+        Node(package="katana_perception", executable="perception_node",
+             name="perception_node", parameters=[params], output="screen"),
+        Node(package="katana_perception", executable="block_memory_node",
+             name="block_memory_node", parameters=[params], output="screen"),
+        Node(package="katana_perception", executable="fovea_node",
+             name="fovea_node", parameters=[params], output="screen"),
+        Node(package="katana_curiosity", executable="curiosity_node",
+             name="curiosity_node", parameters=[params], output="screen"),
     ])
 

@@ -31,13 +31,16 @@ def test_load_params_merges_flattens_and_applies_wildcards(tmp_path):
         run.load_params([bad])
 
 
-def test_default_yaml_holds_every_declared_parameter_of_its_nodes():
+def test_default_yaml_holds_every_declared_parameter_of_its_nodes(tmp_path):
     params = run.load_params(run.default_params_files("sim"))
-    assert {"sim_node", "pick_place_executor"} <= params.keys()
+    assert {"sim_node", "pick_place_executor", "perception_node", "block_memory_node",
+            "fovea_node", "curiosity_node"} <= params.keys()
+    params["curiosity_node"]["run_dir"] = str(tmp_path / "run")
     ctx = Context()
     rclpy.init(context=ctx)
     try:
         nodes = run.build_nodes("sim", params, ctx)
+        assert len(nodes) == 6
         try:
             for node in nodes:
                 builtin = {"use_sim_time", "start_type_description_service"}
@@ -71,7 +74,7 @@ def test_invalid_parameter_stops_construction_with_its_name():
 
 
 def test_main_runs_for_a_bounded_duration_and_rejects_bad_files(tmp_path, capsys):
-    assert run.main(["--duration", "0.5"]) == 0
+    assert run.main(["--duration", "0.5", "--layers", "arm"]) == 0
     assert "sim_node, pick_place_executor" in capsys.readouterr().out
     missing = tmp_path / "nope.yaml"
     assert run.main(["--params", str(missing)]) == 2

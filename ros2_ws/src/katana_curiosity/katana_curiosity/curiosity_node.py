@@ -109,6 +109,14 @@ class CuriosityNode(Node):
             _float("blocks further from the pan axis are out of reach, m", 0.0, 2.0),
         )
         p(
+            "reach_max_by_level",
+            [0.285, 0.28, 0.25, 0.20],
+            ParameterDescriptor(
+                description="farthest block the arm can pick from above, per block level 1, 2, "
+                "... (last entry holds above), m; taller stacks are reachable less far"
+            ),
+        )
+        p(
             "reset_service",
             "sim_node/reset_world",
             ParameterDescriptor(
@@ -127,6 +135,10 @@ class CuriosityNode(Node):
             raise ValueError("parameter 'run_dir' must be a non-empty folder path")
         if g("reach_min_m").value >= g("reach_max_m").value:
             raise ValueError("parameters 'reach_min_m' and 'reach_max_m': need min < max")
+        reach_by_level = tuple(float(r) for r in g("reach_max_by_level").value)
+        if not all(g("reach_min_m").value < r <= 2.0 for r in reach_by_level):
+            raise ValueError("parameter 'reach_max_by_level': every entry must be in "
+                             "(reach_min_m, 2.0] m")
         self.max_height = g("max_height").value
         self.n_actions = g("n_actions").value
         self.max_experiments = g("max_experiments").value
@@ -170,6 +182,7 @@ class CuriosityNode(Node):
                 g("blocks_timeout_s").value,
             ),
             reach=(g("reach_min_m").value, g("reach_max_m").value),
+            reach_by_level=reach_by_level,
             callback_group=self._io_group,
         )
         self.explorer = Explorer(self.world, self.bank, strategy, record_weights=True)
@@ -193,6 +206,7 @@ class CuriosityNode(Node):
         self._thread: threading.Thread | None = None
         self._started_at = time.monotonic()
         self._done_this_session = 0
+        self._dropped = 0
         self.publish_state()
         self.get_logger().info(
             f"strategy {self.strategy_name}, heights 0..{self.max_height}, {self.n_actions} "
@@ -228,6 +242,10 @@ class CuriosityNode(Node):
         if self._thread is not None:
             self._thread.join(timeout=5.0)
 
+    def destroy_node(self) -> None:
+        self.stop()
+        super().destroy_node()
+
     @property
     def experiments(self) -> int:
         return len(self.log)
@@ -245,6 +263,7 @@ class CuriosityNode(Node):
                 failures = 0
             except (PlacementUnavailable, ExperimentAborted, TimeoutError) as exc:
                 failures += 1
+                self._dropped += 1
                 self.get_logger().warning(f"experiment dropped ({failures} in a row): {exc}")
                 self._maybe_reset(force=failures >= 3)
                 if failures >= 3:
@@ -256,11 +275,15 @@ class CuriosityNode(Node):
         self.finished.set()
 
     def _one_experiment(self) -> None:
+        start = time.perf_counter()
         before = self.world.blocks_count()
         self.world.wait_for_blocks()
         with self._lock:
             step = self.explorer.step()
         execution = self.world.last
+        execution.stage_s["experiment_s"] = time.perf_counter() - start
+        execution.stage_s["dropped_before"] = float(self._dropped)
+        self._dropped = 0
         record = self._record(step, execution)
         self.log.append(record)
         save_checkpoint(self.run_dir / CHECKPOINT_NAME, self.bank, self.experiments)

@@ -72,11 +72,13 @@ class RosWorld:
         grasp_retries: int,
         timeouts: Timeouts,
         reach: tuple[float, float],
+        reach_by_level: tuple[float, ...] = (),
         callback_group=None,
     ) -> None:
         self.node = node
         self.n_actions, self.max_height = n_actions, max_height
         self.grasp_retries, self.timeouts, self.reach = grasp_retries, timeouts, reach
+        self.reach_by_level = reach_by_level
         kw = {"callback_group": callback_group}
         self.observe_client = node.create_client(ObserveSetting, "fovea/observe", **kw)
         self.find_client = node.create_client(FindPlacement, "fovea/find_placement", **kw)
@@ -89,6 +91,7 @@ class RosWorld:
         self._blocks_cv = threading.Condition()
         self.instances: list[FoveaInstance] = []
         self.setting_id = 0
+        self.observe_s = 0.0
         self.last: Execution | None = None
 
     # -- world/blocks --------------------------------------------------------------------
@@ -125,8 +128,10 @@ class RosWorld:
     # -- protocol ------------------------------------------------------------------------
 
     def observe(self) -> Setting:
+        start = time.perf_counter()
         request = ObserveSetting.Request(max_state=self.max_height)
         response = call_service(self.observe_client, request, self.timeouts.service_s)
+        self.observe_s = time.perf_counter() - start
         if not response.success:
             raise PlacementUnavailable(f"fovea/observe: {response.message}")
         usable = [
@@ -143,7 +148,7 @@ class RosWorld:
         return Setting.from_pairs(states, actions)
 
     def execute(self, state: int, action: int, index: int | None = None) -> int:
-        stages: dict[str, float] = {}
+        stages: dict[str, float] = {"observe_s": self.observe_s}
         start = time.perf_counter()
         if index is not None:
             instance = self.instances[index]
@@ -158,6 +163,13 @@ class RosWorld:
         t = time.perf_counter()
         moved, attempts = self._pick_and_place(instance)
         stages["pick_place_s"] = time.perf_counter() - t
+
+        # The arm is parked now; judge on an image taken after that, as the paper's robot does.
+        # One new world/blocks may come from an image captured during the last motion, the
+        # second cannot.
+        t = time.perf_counter()
+        self.wait_for_blocks(newer_than=self.blocks_count() + 1)
+        stages["settle_s"] = time.perf_counter() - t
 
         t = time.perf_counter()
         label = self._judge(JudgePlacement.Request.PHASE_AFTER, instance, moved)
@@ -226,10 +238,8 @@ class RosWorld:
             for b in blocks.blocks
             if b.id not in excluded
         }
-        low, high = self.reach
-
         def reachable(view: BlockView) -> bool:
-            return low <= math.hypot(view.x, view.y) <= high
+            return self.pick_reachable(view.x, view.y, view.level)
 
         choice = choose_block_to_move(
             views.values(),
@@ -255,6 +265,13 @@ class RosWorld:
         except TimeoutError:
             handle.cancel_goal_async()
             raise
+
+    def pick_reachable(self, x: float, y: float, level: int) -> bool:
+        """Within the annulus, and within the top-down reach for a block at that level."""
+        low, high = self.reach
+        if self.reach_by_level:
+            high = min(high, self.reach_by_level[min(max(level, 1), len(self.reach_by_level)) - 1])
+        return low <= math.hypot(x, y) <= high
 
     # -- resets --------------------------------------------------------------------------
 

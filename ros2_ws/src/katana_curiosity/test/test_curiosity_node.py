@@ -40,6 +40,8 @@ class FakeGraph(Node):
         self.create_subscription(Experience, "curiosity/experience", self.on_experience, 10)
         ActionServer(self, PickAndPlace, "pick_and_place", self.pick_place)
         self.publish_blocks()
+        # like block_memory_node, which answers every camera frame with a world/blocks
+        self.create_timer(0.02, self.publish_blocks)
 
     def publish_blocks(self) -> None:
         msg = BlockArray()

@@ -68,6 +68,10 @@ class FoveaNode(Node):
                               "Nearest placement to the pan axis, m (0..1).", 0.0, 1.0),
             reach_max=declare(self, "reach_max", 0.29,
                               "Farthest placement from the pan axis, m (0..1).", 0.0, 1.0),
+            reach_max_by_state=tuple(declare(
+                self, "reach_max_by_state", [0.30, 0.28, 0.25, 0.20],
+                "Farthest placement per stack height 0, 1, 2, ... (last entry holds above), m "
+                "(0..1); the arm reaches less far over taller stacks.", 0.0, 1.0)),
             area_x=tuple(require_length("play_x", declare(
                 self, "play_x", [0.14, 0.30], "Play area x interval, m (-2..2).", -2.0, 2.0), 2)),
             area_y=tuple(require_length("play_y", declare(

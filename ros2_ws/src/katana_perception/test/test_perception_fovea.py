@@ -219,6 +219,24 @@ def test_placements_are_reachable_and_clear_of_neighbours():
         FoveaScene(far, CALIB).find(1, 6)
 
 
+def test_reach_shrinks_with_stack_height():
+    # a stack of two centred at 0.27 m: its top spans 0.25..0.29 m, beyond the 0.25 m limit
+    # for placing on height 2 except at its near edge
+    blocks = [Block("red", "red", 0.27, 0.0, 0.0),
+              Block("green", "green", 0.27, 0.0, 0.0, support="red"),
+              Block("blue", "blue", 0.18, 0.06, 0.0)]
+    limits = (0.30, 0.28, 0.25, 0.20)
+    fovea = FoveaScene(blocks, CALIB, FoveaParams(reach_max_by_state=limits))
+    instances = fovea.observe()
+    assert {0, 1} <= {i.state for i in instances}
+    for i in instances:
+        assert math.hypot(i.x, i.y) <= limits[min(i.state, 3)] + 1e-9
+    with pytest.raises(NotFound):
+        fovea.find(2, 6)  # all five points on the top need the centre beyond 0.26 m
+    # without the per-height limits the same placement is offered
+    assert FoveaScene(blocks, CALIB, FoveaParams()).find(2, 6).state == 2
+
+
 def test_table_instance_needs_a_free_place():
     blocks = memory_scene(3)
     fovea = FoveaScene(blocks, CALIB)

@@ -45,6 +45,9 @@ class FoveaParams:
     table_step_m: float = 0.02  # grid of candidate table places (state 0)
     reach_min: float = 0.14  # placement radius from the pan axis, m
     reach_max: float = 0.29
+    # Farthest placement per stack height (index = state; the last entry holds above): a
+    # taller stack needs the wrist higher, so the arm reaches less far (katana_manipulation).
+    reach_max_by_state: tuple[float, ...] = ()
     area_x: tuple[float, float] = (0.14, 0.30)  # play area, m
     area_y: tuple[float, float] = (-0.16, 0.16)
     clearance: float = 0.005  # free margin around a placed block, m
@@ -60,6 +63,7 @@ class FoveaParams:
             "fine_step_px": self.fine_step_px > 0,
             "table_step_m": self.table_step_m > 0,
             "reach_min/reach_max": 0 <= self.reach_min < self.reach_max,
+            "reach_max_by_state": all(self.reach_min < r for r in self.reach_max_by_state),
             "area_x": self.area_x[0] < self.area_x[1],
             "area_y": self.area_y[0] < self.area_y[1],
             "clearance": self.clearance >= 0,
@@ -230,10 +234,16 @@ class FoveaScene:
         return best.height, best, hull_bits(local[in_window(local, size)], self.params.offset_px)
 
     # ---------------------------------------------------------------- checks
-    def _reachable(self, x: float, y: float) -> bool:
+    def reach_max(self, state: int) -> float:
+        p = self.params
+        if not p.reach_max_by_state:
+            return p.reach_max
+        return min(p.reach_max, p.reach_max_by_state[min(state, len(p.reach_max_by_state) - 1)])
+
+    def _reachable(self, x: float, y: float, state: int = 0) -> bool:
         p = self.params
         e = 1e-9  # a grid point back-projected from its pixel comes back within rounding
-        return (p.reach_min - e <= math.hypot(x, y) <= p.reach_max + e
+        return (p.reach_min - e <= math.hypot(x, y) <= self.reach_max(state) + e
                 and p.area_x[0] - e <= x <= p.area_x[1] + e
                 and p.area_y[0] - e <= y <= p.area_y[1] + e)
 
@@ -258,7 +268,7 @@ class FoveaScene:
         h = self.blocks[0].size[2] if self.blocks else 0.03
         z_top = state * h
         x, y = (float(a) for a in c.pixel_to_world(u, v, z_top))
-        if not (math.isfinite(x) and math.isfinite(y)) or not self._reachable(x, y):
+        if not (math.isfinite(x) and math.isfinite(y)) or not self._reachable(x, y, state):
             return None
         yaw = stack.top.yaw if stack is not None else self.params.table_yaw
         if self._collides(x, y, yaw, stack):

@@ -1,0 +1,192 @@
+"""katana-demo: the paper's robot experiment (sections 2 and 3.3) on the simulated Katana.
+
+    katana-demo [--experiments 200] [--out DIR] [--strategy q1] [--seed 0] [--backend sim]
+
+Starts the whole node graph in one process (sim or hardware, executor, perception, memory,
+fovea, curiosity), headless, and lets the curiosity node run a bounded number of experiments
+into a run folder. The curiosity node reports every experiment on the terminal (number, query
+or plan, height, label, experiments per minute). At the end the folder holds the experience
+log, the learner checkpoint, summary.json, model.png (learned stability model per height and
+action with its confidence band, cf. the paper's Figure 13), experience.png (direct and
+planned experience per height, cf. Figure 4) and frames/ (camera images before and after a
+few placements, with the fovea and the chosen placement drawn).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+import time
+from datetime import datetime
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .run import EXECUTOR_THREADS, build_nodes, default_params_files, load_params
+
+FRAMES_FIRST = 6  # frames of the first experiments, then one every FRAMES_EVERY
+FRAMES_EVERY = 25
+HEADLESS_CAMERA_RATE = 5.0  # Hz of sim time (and at most of wall time)
+
+
+def draw_placement(rgb: np.ndarray, u: float, v: float, bits, text: str, fovea_px: int = 40,
+                   offset_px: float = 10.0, stable: bool | None = None) -> np.ndarray:
+    """The fovea window, its five test points (filled: inside the hull) and a caption."""
+    bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+    colour = (0, 200, 255) if stable is None else ((0, 200, 0) if stable else (0, 0, 230))
+    half = fovea_px / 2
+    cv2.rectangle(bgr, (round(u - half), round(v - half)), (round(u + half), round(v + half)),
+                  colour, 1)
+    points = [(0, 0), (offset_px, offset_px), (-offset_px, offset_px), (-offset_px, -offset_px),
+              (offset_px, -offset_px)]
+    for (du, dv), on in zip(points, list(bits) + [False] * (5 - len(bits)), strict=False):
+        cv2.circle(bgr, (round(u + du), round(v + dv)), 3, colour, -1 if on else 1)
+    cv2.putText(bgr, text, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, colour, 2, cv2.LINE_AA)
+    return bgr
+
+
+class FrameRecorder:
+    """Keeps the camera frame before and after each experiment and saves a few of them."""
+
+    def __init__(self, node, out: Path) -> None:
+        from katana_interfaces.msg import Experience
+        from katana_perception.conversions import image_to_rgb
+        from rclpy.qos import qos_profile_sensor_data
+        from sensor_msgs.msg import Image
+
+        self.out = out
+        self.out.mkdir(parents=True, exist_ok=True)
+        self._to_rgb = image_to_rgb
+        self._latest: np.ndarray | None = None
+        self._before: np.ndarray | None = None
+        self._lock = threading.Lock()
+        self.saved: list[Path] = []
+        node.create_subscription(Image, "camera/image_raw", self._on_image,
+                                 qos_profile_sensor_data)
+        node.create_subscription(Experience, "curiosity/experience", self._on_experience, 10)
+
+    def _on_image(self, msg) -> None:
+        try:
+            rgb = self._to_rgb(msg)
+        except ValueError:
+            return
+        with self._lock:
+            self._latest = rgb
+            if self._before is None:
+                self._before = rgb
+
+    def _on_experience(self, msg) -> None:
+        with self._lock:
+            before, after = self._before, self._latest
+            self._before = after  # the scene after this experiment is the next one's before
+        if before is None or after is None:
+            return
+        if msg.index >= FRAMES_FIRST and msg.index % FRAMES_EVERY:
+            return
+        inst = msg.instance
+        caption = f"#{msg.index} {msg.mode} s={inst.state} a={inst.action}"
+        left = draw_placement(before, inst.pixel_u, inst.pixel_v, inst.bits,
+                              caption + " (before)")
+        right = draw_placement(after, inst.pixel_u, inst.pixel_v, inst.bits,
+                               f"label {msg.label:+d} (after)", stable=msg.label > 0)
+        path = self.out / f"experiment_{msg.index:04d}.png"
+        cv2.imwrite(str(path), np.hstack([left, right]))
+        self.saved.append(path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="katana-demo", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--experiments", type=int, default=200, help="experiments to run")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="run folder (default runs/demo-<time>; an existing one resumes)")
+    parser.add_argument("--strategy", default=None, help="q1 (default), q10, conf or random")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the sim and the learner")
+    parser.add_argument("--backend", choices=("sim", "hardware"), default="sim")
+    parser.add_argument("--params", action="append", default=None, metavar="FILE",
+                        help="ROS parameter YAML (default: the package's config)")
+    parser.add_argument("--real-time-factor", type=float, default=0.0,
+                        help="sim pace: 0 as fast as possible (default), 1 wall-clock")
+    parser.add_argument("--timeout", type=float, default=None, metavar="S",
+                        help="give up after S wall seconds (default: 30 s per experiment)")
+    args, ros_args = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
+    if args.experiments < 1:
+        parser.error(f"--experiments must be >= 1, got {args.experiments}")
+    if args.real_time_factor < 0:
+        parser.error("--real-time-factor must be >= 0")
+    out = args.out or Path("runs") / f"demo-{datetime.now():%Y%m%d-%H%M%S}"
+    out.mkdir(parents=True, exist_ok=True)
+
+    params = load_params(args.params or default_params_files(args.backend))
+    curiosity = params.setdefault("curiosity_node", {})
+    curiosity.update(run_dir=str(out), max_experiments=args.experiments, seed=args.seed)
+    if args.strategy:
+        curiosity["strategy"] = args.strategy
+    if args.params is None:
+        # Headless: nobody looks at the debug image, and fewer camera frames leave the shared
+        # process's CPU to the physics (the judge still waits for frames taken after parking).
+        params.setdefault("perception_node", {})["publish_debug_image"] = False
+        if args.backend == "sim":
+            params.setdefault("sim_node", {})["camera_rate"] = HEADLESS_CAMERA_RATE
+    if args.backend == "sim":
+        params.setdefault("sim_node", {}).update(seed=args.seed,
+                                                 real_time_factor=args.real_time_factor)
+    else:
+        curiosity["reset_service"] = "katana_driver_node/reset_world"
+
+    import rclpy
+    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.node import Node
+
+    rclpy.init(args=ros_args)
+    try:
+        nodes = build_nodes(args.backend, params)
+    except Exception as exc:
+        print(f"katana-demo: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    recorder_node = Node("demo_frame_recorder")
+    recorder = FrameRecorder(recorder_node, out / "frames")
+    executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS)
+    for node in [*nodes, recorder_node]:
+        executor.add_node(node)
+    learner = next(n for n in nodes if n.get_name() == "curiosity_node")
+    print(f"katana-demo: backend {args.backend}, {args.experiments} experiments "
+          f"(strategy {learner.strategy_name}), run folder {out}", flush=True)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    start = time.monotonic()
+    spinner.start()
+    timeout = args.timeout or 30.0 * args.experiments + 60.0
+    try:
+        finished = learner.finished.wait(timeout)
+    except KeyboardInterrupt:
+        finished = False
+        print("katana-demo: interrupted; what was recorded is kept", file=sys.stderr)
+    wall = time.monotonic() - start
+    learner.stop()
+    done = learner.experiments
+    executor.shutdown(timeout_sec=5.0)
+    for node in [*nodes, recorder_node]:
+        node.destroy_node()
+    rclpy.try_shutdown()
+
+    from katana_curiosity.core.robot_report import write_report
+
+    alpha = learner.rule.alpha
+    summary = write_report(
+        out, n_actions=learner.n_actions, max_height=learner.max_height, alpha=alpha,
+        theta=learner.rule.theta,
+        extra={"backend": args.backend, "strategy": learner.strategy_name, "seed": args.seed,
+               "wall_s": round(wall, 1), "frames": [p.name for p in recorder.saved],
+               "completed": bool(finished)},
+    )
+    status = "done" if finished else "stopped early"
+    print(f"katana-demo: {status}: {done} experiments in {wall:.0f} s, highest stack "
+          f"{summary['highest_stack']}, heights explored {summary['heights_explored']}")
+    print(f"katana-demo: results in {out}/ (summary.json, model.png, experience.png, frames/)")
+    return 0 if finished else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
