@@ -50,8 +50,8 @@ def draw_placement(rgb: np.ndarray, u: float, v: float, bits, text: str, fovea_p
 class FrameRecorder:
     """Keeps the camera frame before and after each experiment and saves a few of them."""
 
-    def __init__(self, node, out: Path) -> None:
-        from katana_interfaces.msg import Experience
+    def __init__(self, node, out: Path, ground_truth: bool = False) -> None:
+        from katana_interfaces.msg import BlockArray, Experience
         from katana_perception.conversions import image_to_rgb
         from rclpy.qos import qos_profile_sensor_data
         from sensor_msgs.msg import Image
@@ -63,9 +63,31 @@ class FrameRecorder:
         self._before: np.ndarray | None = None
         self._lock = threading.Lock()
         self.saved: list[Path] = []
+        self.truth = None
+        self.agreement: list[bool] = []  # judge's label vs the sim's ground truth, per experiment
         node.create_subscription(Image, "camera/image_raw", self._on_image,
                                  qos_profile_sensor_data)
         node.create_subscription(Experience, "curiosity/experience", self._on_experience, 10)
+        if ground_truth:  # evaluation only: the learner never sees it
+            from rclpy.qos import DurabilityPolicy, QoSProfile
+
+            node.create_subscription(
+                BlockArray, "sim/ground_truth", self._on_truth,
+                QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+
+    def _on_truth(self, msg) -> None:
+        self.truth = msg
+
+    def _truly_stable(self, msg) -> bool | None:
+        """Does the sim agree the placed block rests on the stack, at the placement?"""
+        if self.truth is None:
+            return None
+        block = next((b for b in self.truth.blocks if b.id == msg.moved_block), None)
+        if block is None:
+            return None
+        place = msg.instance.placement.position
+        near = np.hypot(block.pose.position.x - place.x, block.pose.position.y - place.y) < 0.015
+        return bool(near and block.level == msg.instance.state + 1)
 
     def _on_image(self, msg) -> None:
         try:
@@ -81,9 +103,14 @@ class FrameRecorder:
         with self._lock:
             before, after = self._before, self._latest
             self._before = after  # the scene after this experiment is the next one's before
+        truth = self._truly_stable(msg)
+        agrees = truth is None or truth == (msg.label > 0)
+        if truth is not None:
+            self.agreement.append(agrees)
         if before is None or after is None:
             return
-        if msg.index >= FRAMES_FIRST and msg.index % FRAMES_EVERY:
+        interesting = msg.index < FRAMES_FIRST or msg.index % FRAMES_EVERY == 0
+        if agrees and not interesting:
             return
         inst = msg.instance
         caption = f"#{msg.index} {msg.mode} s={inst.state} a={inst.action}"
@@ -91,7 +118,8 @@ class FrameRecorder:
                               caption + " (before)")
         right = draw_placement(after, inst.pixel_u, inst.pixel_v, inst.bits,
                                f"label {msg.label:+d} (after)", stable=msg.label > 0)
-        path = self.out / f"experiment_{msg.index:04d}.png"
+        suffix = "" if agrees else "_judge_disagrees_with_sim"
+        path = self.out / f"experiment_{msg.index:04d}{suffix}.png"
         cv2.imwrite(str(path), np.hstack([left, right]))
         self.saved.append(path)
 
@@ -147,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         rclpy.try_shutdown()
         return 2
     recorder_node = Node("demo_frame_recorder")
-    recorder = FrameRecorder(recorder_node, out / "frames")
+    recorder = FrameRecorder(recorder_node, out / "frames", ground_truth=args.backend == "sim")
     executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS)
     for node in [*nodes, recorder_node]:
         executor.add_node(node)
@@ -179,6 +207,8 @@ def main(argv: list[str] | None = None) -> int:
         theta=learner.rule.theta,
         extra={"backend": args.backend, "strategy": learner.strategy_name, "seed": args.seed,
                "wall_s": round(wall, 1), "frames": [p.name for p in recorder.saved],
+               "judge_agrees_with_sim": (round(sum(recorder.agreement) / len(recorder.agreement), 3)
+                                         if recorder.agreement else None),
                "completed": bool(finished)},
     )
     status = "done" if finished else "stopped early"

@@ -93,6 +93,8 @@ class RosWorld:
         self.setting_id = 0
         self.observe_s = 0.0
         self.last: Execution | None = None
+        # blocks the arm could not pick, with where they were: skipped until they move
+        self.unpickable: dict[str, tuple[float, float]] = {}
 
     # -- world/blocks --------------------------------------------------------------------
 
@@ -221,12 +223,22 @@ class RosWorld:
             if code == PickAndPlace.Result.UNREACHABLE and self._place_unreachable(result):
                 raise PlacementUnavailable(reason)
             if code == PickAndPlace.Result.UNREACHABLE:
-                excluded.add(block.id)  # try another block
+                excluded.add(block.id)  # try another block, now and until this one moves
+                self.unpickable[block.id] = (block.pose.position.x, block.pose.position.y)
             elif code != PickAndPlace.Result.GRASP_MISSED:
                 raise ExperimentAborted(reason)
             if attempts > self.grasp_retries:
                 raise ExperimentAborted(f"{reason}; gave up after {attempts} attempts")
             self.node.get_logger().warning(f"{reason}; retrying")
+
+    def _still_unpickable(self, block) -> bool:
+        where = self.unpickable.get(block.id)
+        if where is None:
+            return False
+        if math.hypot(block.pose.position.x - where[0], block.pose.position.y - where[1]) < 0.005:
+            return True
+        del self.unpickable[block.id]  # it moved: worth trying again
+        return False
 
     @staticmethod
     def _place_unreachable(result) -> bool:
@@ -236,7 +248,7 @@ class RosWorld:
         views = {
             b.id: BlockView(b.id, b.pose.position.x, b.pose.position.y, b.on_top, b.level)
             for b in blocks.blocks
-            if b.id not in excluded
+            if b.id not in excluded and not self._still_unpickable(b)
         }
         def reachable(view: BlockView) -> bool:
             return self.pick_reachable(view.x, view.y, view.level)

@@ -1,0 +1,79 @@
+"""backend:=hardware: the whole graph starts against the protocol EMULATOR (not an arm) and a
+SUBSTITUTE camera, with the same node, topic and action names as the simulated graph."""
+
+from __future__ import annotations
+
+import pytest
+from katana_bringup.run import build_nodes, default_params_files, load_params
+from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
+from katana_interfaces.msg import LearnerState
+from rclpy.action import get_action_names_and_types
+from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
+from sensor_msgs.msg import Image, JointState
+
+pytestmark = pytest.mark.timeout(120)
+
+EXPECTED_NODES = {"katana_driver_node", "camera_node", "pick_place_executor", "perception_node",
+                  "block_memory_node", "fovea_node", "curiosity_node"}
+EXPECTED_ACTIONS = {
+    "/arm_controller/follow_joint_trajectory": "katana_interfaces/action/FollowJointTrajectory",
+    "/gripper_controller/gripper_command": "katana_interfaces/action/GripperCommand",
+    "/pick_and_place": "katana_interfaces/action/PickAndPlace",
+}
+EXPECTED_SERVICES = {
+    "/katana_driver_node/reset_world": "katana_interfaces/srv/ResetWorld",
+    "/katana_driver_node/set_motors": "katana_interfaces/srv/SetMotors",
+    "/fovea/observe": "katana_interfaces/srv/ObserveSetting",
+    "/fovea/find_placement": "katana_interfaces/srv/FindPlacement",
+    "/perception/judge_placement": "katana_interfaces/srv/JudgePlacement",
+}
+
+
+@pytest.fixture
+def emulator():
+    emu = KatanaEmulator(KatanaModel(variant="6M180", time_scale=20.0, calibration_s=0.2),
+                         Faults())
+    emu.serve_tcp("127.0.0.1", 0)
+    try:
+        yield emu
+    finally:
+        emu.stop()
+
+
+def test_hardware_graph_starts_against_the_emulator_and_a_substitute_camera(
+        ros_graph, emulator, tmp_path):
+    host, port = emulator.address
+    params = load_params(default_params_files("hardware"))
+    params["katana_driver_node"] = {"host": host, "port": port}
+    params["camera_node"] = {"device": "substitute", "rate": 10.0}
+    params["curiosity_node"].update(run_dir=str(tmp_path), max_experiments=1,
+                                    reset_service="katana_driver_node/reset_world",
+                                    service_timeout_s=2.0, blocks_timeout_s=2.0)
+    g = ros_graph
+    nodes = build_nodes("hardware", params, g.context)
+    assert {n.get_name() for n in nodes} == EXPECTED_NODES
+    g.add(*nodes)
+    probe = g.node("hardware_graph_probe")
+    joints: list[JointState] = []
+    images: list[Image] = []
+    learner: list[LearnerState] = []
+    probe.create_subscription(JointState, "joint_states", joints.append, 10)
+    probe.create_subscription(Image, "camera/image_raw", images.append, qos_profile_sensor_data)
+    probe.create_subscription(LearnerState, "curiosity/learner_state", learner.append,
+                              QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+
+    g.wait_for(lambda: EXPECTED_NODES <= set(probe.get_node_names()), timeout=20.0)
+    g.wait_for(lambda: joints and images and learner, timeout=30.0)
+    assert len(joints[-1].name) == 7, "five arm joints and two fingers, as from the sim"
+    assert (images[-1].width, images[-1].height, images[-1].encoding) == (640, 480, "rgb8")
+    actions = g.wait_for(lambda: dict(get_action_names_and_types(probe)).keys()
+                         >= EXPECTED_ACTIONS.keys() and dict(get_action_names_and_types(probe)))
+    for name, kind in EXPECTED_ACTIONS.items():
+        assert actions[name] == [kind], name
+    services = g.wait_for(lambda: dict(probe.get_service_names_and_types()).keys()
+                          >= EXPECTED_SERVICES.keys() and dict(probe.get_service_names_and_types()))
+    for name, kind in EXPECTED_SERVICES.items():
+        assert services[name] == [kind], name
+    # the emulated controller is being talked to: the driver calibrated it
+    driver = next(n for n in nodes if n.get_name() == "katana_driver_node")
+    g.wait_for(lambda: driver.worker.ready, timeout=30.0)
