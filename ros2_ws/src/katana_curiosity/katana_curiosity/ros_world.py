@@ -141,8 +141,13 @@ class RosWorld:
             for inst in response.instances
             if inst.state <= self.max_height and 1 <= inst.action <= self.n_actions
         ]
+        # Available means executable (paper 2.2: availability comes from the known blocks): a
+        # placement needs a block the arm can pick that is not part of the target stack.
+        blocks = self.blocks()
+        if blocks is not None:
+            usable = [inst for inst in usable if self._choose_block(blocks, inst, set())]
         if not usable:
-            raise PlacementUnavailable("fovea/observe listed no usable instance")
+            raise PlacementUnavailable("fovea/observe listed no instance with a block to move")
         self.instances = usable
         self.setting_id = int(response.setting)
         states = np.array([inst.state for inst in usable])
@@ -184,7 +189,8 @@ class RosWorld:
     # -- steps ---------------------------------------------------------------------------
 
     def find_placement(self, state: int, action: int) -> FoveaInstance:
-        request = FindPlacement.Request(state=state, action=action + 1)
+        # plain ints: the generated C conversion aborts the process on a numpy integer
+        request = FindPlacement.Request(state=int(state), action=int(action) + 1)
         response = call_service(self.find_client, request, self.timeouts.service_s)
         if not response.found:
             raise PlacementUnavailable(

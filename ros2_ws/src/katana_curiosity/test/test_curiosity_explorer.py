@@ -125,3 +125,15 @@ def test_unknown_strategy_name_lists_the_known_ones() -> None:
     bank = PredictorBank(world.learned_heights, world.features, n_states=world.top + 1)
     with pytest.raises(ValueError, match="conf, q1, q10, random"):
         make_strategy("greedy", bank, world.top)
+
+
+def test_alternatives_are_plain_python_ints() -> None:
+    # ROS message fields abort the process on numpy integers: choices must be plain ints
+    explorer, tracing, strategy = make("q1", seed=0)
+    setting = tracing.observe()
+    strategy.planner.solve()
+    failed = strategy.planned(setting)
+    alternatives = strategy.alternatives(setting, failed)
+    assert alternatives
+    assert all(type(c.state) is int and type(c.action) is int for c in alternatives)
+    assert type(failed.state) is int and type(failed.action) is int

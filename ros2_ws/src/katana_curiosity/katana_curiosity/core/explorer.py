@@ -86,7 +86,7 @@ class PlanningStrategy(Strategy):
 
     def alternatives(self, setting: Setting | ShuffledSetting, failed: Choice) -> list[Choice]:
         q = self.planner.q
-        pairs = [(q[s, a], s, a) for s in setting.available for a in range(q.shape[1])]
+        pairs = [(q[s, a], int(s), a) for s in setting.available for a in range(q.shape[1])]
         pairs.sort(key=lambda t: (-t[0], -t[1], t[2]))
         return [
             Choice(s, a, failed.mode)
