@@ -158,8 +158,6 @@ class CuriosityNode(Node):
             self.get_logger().warning("dropped a partially written last line of the log")
         replayed = replay(self.bank, self.log.records)
         self._check_checkpoint(replayed)
-        self.queries = sum(r.get("mode") == "query" for r in self.log.records)
-        self.plans = sum(r.get("mode") == "plan" for r in self.log.records)
         strategy = make_strategy(
             self.strategy_name,
             self.bank,

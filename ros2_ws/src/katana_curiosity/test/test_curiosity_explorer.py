@@ -137,3 +137,24 @@ def test_alternatives_are_plain_python_ints() -> None:
     assert alternatives
     assert all(type(c.state) is int and type(c.action) is int for c in alternatives)
     assert type(failed.state) is int and type(failed.action) is int
+
+
+def test_planned_choice_is_constrained_to_the_pairs_the_setting_offers() -> None:
+    from katana_curiosity.core.explorer import Q1
+
+    world = AbstractBlocksWorld(seed=0)
+    bank = PredictorBank(world.learned_heights, world.features, n_states=world.top + 1)
+    strategy = Q1(bank, world.top)
+    q = np.zeros((world.top + 1, world.n_actions))
+    q[1, 20], q[1, 7], q[1, 3] = 0.9, 0.5, 0.4  # the best action at height 1 is 20
+    q[2] = 0.1
+    strategy.planner.q = q
+    # the fovea found only actions 3 and 7 at height 1 (and one at height 2)
+    setting = Setting.from_pairs(np.array([2, 1, 1, 0]), np.array([5, 3, 7, 0]))
+    choice = strategy.planned(setting)
+    assert (choice.state, choice.action, choice.index) == (1, 7, 2), "best offered, with index"
+    ranked = strategy.alternatives(setting, choice)
+    assert [(c.state, c.action, c.index) for c in ranked] == [(1, 3, 1), (2, 5, 0), (0, 0, 3)]
+    # with every pair available (the abstract world) the choice is the unconstrained optimum
+    full = world.observe()
+    assert strategy.planned(full).action == int(np.argmax(q[strategy.planned(full).state]))

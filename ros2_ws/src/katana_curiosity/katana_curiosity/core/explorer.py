@@ -81,15 +81,25 @@ class PlanningStrategy(Strategy):
         self.planner = Planner(bank, top, gamma, reward=self.reward)
 
     def planned(self, setting: Setting | ShuffledSetting, q: np.ndarray | None = None) -> Choice:
+        """(s*, a*) constrained by availability (section 2.2): the available state of highest
+        value, then the best action the setting offers there."""
+        q = self.planner.q if q is None else q
         s, a = self.planner.choose(setting.available, q)
-        return Choice(s, a, PLAN)
+        offered = setting.actions_at(s)
+        if len(offered) and a not in offered:
+            a = int(offered[int(np.argmax(q[s, offered]))])
+        return Choice(s, a, PLAN, setting.index_of(s, a))
 
     def alternatives(self, setting: Setting | ShuffledSetting, failed: Choice) -> list[Choice]:
         q = self.planner.q
-        pairs = [(q[s, a], int(s), a) for s in setting.available for a in range(q.shape[1])]
+        pairs = [
+            (q[s, a], int(s), int(a))
+            for s in setting.available
+            for a in setting.actions_at(int(s))
+        ]
         pairs.sort(key=lambda t: (-t[0], -t[1], t[2]))
         return [
-            Choice(s, a, failed.mode)
+            Choice(s, a, failed.mode, setting.index_of(s, a))
             for _, s, a in pairs
             if (s, a) != (failed.state, failed.action)
         ]
@@ -197,12 +207,13 @@ class Explorer:
         try:
             return self.world.execute(choice.state, choice.action, choice.index), choice
         except PlacementUnavailable:
-            if choice.index is not None:
+            if choice.mode != PLAN:
                 raise
         # A planned pair the world cannot realise: try the next best ones.
         for alternative in self.strategy.alternatives(setting, choice)[: self.max_alternatives]:
             try:
-                return self.world.execute(alternative.state, alternative.action, None), alternative
+                label = self.world.execute(alternative.state, alternative.action, alternative.index)
+                return label, alternative
             except PlacementUnavailable:
                 continue
         raise PlacementUnavailable(

@@ -46,6 +46,15 @@ class Setting:
         index = rng.randrange(len(self.states))
         return index, int(self.states[index]), int(self.actions[index])
 
+    def actions_at(self, state: int) -> np.ndarray:
+        """The distinct actions this setting offers at `state`, ascending."""
+        return np.unique(self.actions[self.states == state])
+
+    def index_of(self, state: int, action: int) -> int | None:
+        """Position of the first instance realising (state, action), or None."""
+        hits = np.flatnonzero((self.states == state) & (self.actions == action))
+        return int(hits[0]) if len(hits) else None
+
 
 @dataclass(frozen=True)
 class ShuffledSetting:
@@ -82,6 +91,12 @@ class ShuffledSetting:
     def random_instance(self, rng: random.Random) -> tuple[int | None, int, int]:
         row, action = divmod(rng.randrange(len(self)), self.n_actions)
         return None, int(self.available[row]), action
+
+    def actions_at(self, state: int) -> np.ndarray:
+        return np.arange(self.n_actions) if state in self.available else np.arange(0)
+
+    def index_of(self, state: int, action: int) -> int | None:
+        return None  # the world realises any available pair itself
 
 
 class World(Protocol):
