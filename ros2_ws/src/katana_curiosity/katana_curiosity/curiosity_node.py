@@ -81,6 +81,8 @@ class CuriosityNode(Node):
         p("gamma", 0.95, _float("discount factor of the planner", 0.0, 0.999))
         p("max_height", 3, _int("highest stack height placed upon (heights 0..max_height)", 0, 7))
         p("n_actions", 6, _int("actions per state: bits on + 1 (six on the robot)", 1, 32))
+        p("table_action", 1, _int("the only action a placement on the table (height 0) can "
+                                  "have (no block in the fovea: bits off); 0 = any", 0, 32))
         p(
             "run_dir",
             "runs/robot",
@@ -158,12 +160,22 @@ class CuriosityNode(Node):
             self.get_logger().warning("dropped a partially written last line of the log")
         replayed = replay(self.bank, self.log.records)
         self._check_checkpoint(replayed)
+        feasible = np.ones((self.max_height + 2, self.n_actions), dtype=bool)
+        table_action = g("table_action").value
+        if table_action > self.n_actions:
+            raise ValueError(
+                f"parameter 'table_action' is {table_action}; valid: 0..{self.n_actions}"
+            )
+        if table_action:
+            feasible[0] = False
+            feasible[0, table_action - 1] = True
         strategy = make_strategy(
             self.strategy_name,
             self.bank,
             self.max_height + 1,
             g("gamma").value,
             seed=g("seed").value + replayed,
+            feasible=feasible,
         )
         self.strategy = strategy
 

@@ -151,3 +151,50 @@ def test_invalid_planner_arguments_are_rejected() -> None:
         Planner(bank, top=5)
     with pytest.raises(ValueError, match="reward"):
         Planner(bank, top=4, reward="bogus")
+
+
+def masked_value_iteration(mdp: HeightMDP, feasible: np.ndarray) -> np.ndarray:
+    q = np.zeros((mdp.n_states, mdp.n_actions))
+    for _ in range(100_000):
+        v = np.where(feasible, q, -np.inf).max(axis=1)
+        q_new = mdp.rewards + mdp.gamma * (mdp.transitions @ v)
+        if np.max(np.abs(q_new - q)) < 1e-12:
+            break
+        q = q_new
+    return np.where(feasible, q_new, -np.inf)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 100_000))
+def test_lspi_with_infeasible_pairs_matches_restricted_value_iteration(seed: int) -> None:
+    mdp = random_mdp(seed, ns=5, na=4)
+    rng = np.random.default_rng(seed)
+    feasible = rng.random((5, 4)) < 0.6
+    feasible[np.arange(5), rng.integers(4, size=5)] = True  # at least one action per state
+    mdp.rewards[~feasible] = 100.0  # huge rewards where nothing can happen must not attract
+    result = lspi(mdp, feasible=feasible)
+    assert np.all(feasible[np.arange(5), result.policy])
+    expected = masked_value_iteration(mdp, feasible)
+    np.testing.assert_allclose(result.q.max(axis=1), expected.max(axis=1), atol=1e-7)
+
+
+def test_infeasible_unknowns_on_the_table_do_not_attract_the_plan() -> None:
+    # the robot: heights 0..3 learned; on the table only action 0 can occur, so actions 1..5
+    # at height 0 are never sampled and stay "unknown"; an unknown at height 2 is the real goal
+    bank = PredictorBank(range(4), one_hot_with_bias(6), QueryRule(1.0, 0.1), n_states=5)
+    for s in (0, 1, 2, 3):
+        bank.w[bank.slot[s]] = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.95, 0.0])
+        bank._refresh(s)
+    bank.w[bank.slot[0]] = np.array([0.95, 0, 0, 0, 0, 0, 0.0])
+    bank._refresh(0)
+    bank.unknown[:] = False
+    bank.unknown[0, 1:] = True  # never observable
+    bank.unknown[2, 3] = True  # worth reaching
+    feasible = np.ones((5, 6), dtype=bool)
+    feasible[0, 1:] = False
+    naive = Planner(bank, top=4)
+    naive.solve()
+    assert naive.choose(np.array([0, 1]))[0] == 0, "without the mask the table looks best"
+    planner = Planner(bank, top=4, feasible=feasible)
+    planner.solve()
+    assert planner.choose(np.array([0, 1])) == (1, 5), "build towards height 2 instead"

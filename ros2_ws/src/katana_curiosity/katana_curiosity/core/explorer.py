@@ -76,9 +76,16 @@ class PlanningStrategy(Strategy):
 
     reward: ClassVar[str] = "query"
 
-    def __init__(self, bank: PredictorBank, top: int, gamma: float = 0.95, seed: int = 0) -> None:
+    def __init__(
+        self,
+        bank: PredictorBank,
+        top: int,
+        gamma: float = 0.95,
+        seed: int = 0,
+        feasible: np.ndarray | None = None,
+    ) -> None:
         super().__init__(bank, top, gamma, seed)
-        self.planner = Planner(bank, top, gamma, reward=self.reward)
+        self.planner = Planner(bank, top, gamma, reward=self.reward, feasible=feasible)
 
     def planned(self, setting: Setting | ShuffledSetting, q: np.ndarray | None = None) -> Choice:
         """(s*, a*) constrained by availability (section 2.2): the available state of highest
@@ -124,8 +131,15 @@ class Q10(Q1):
     name = "q10"
     period: ClassVar[int] = 10
 
-    def __init__(self, bank: PredictorBank, top: int, gamma: float = 0.95, seed: int = 0) -> None:
-        super().__init__(bank, top, gamma, seed)
+    def __init__(
+        self,
+        bank: PredictorBank,
+        top: int,
+        gamma: float = 0.95,
+        seed: int = 0,
+        feasible: np.ndarray | None = None,
+    ) -> None:
+        super().__init__(bank, top, gamma, seed, feasible)
         self.solved_at: int | None = None
 
     def choose(self, setting: Setting | ShuffledSetting, step: int) -> Choice:
@@ -163,14 +177,22 @@ STRATEGIES: dict[str, type[Strategy]] = {cls.name: cls for cls in (Q1, Q10, Conf
 
 
 def make_strategy(
-    name: str, bank: PredictorBank, top: int, gamma: float = 0.95, seed: int = 0
+    name: str,
+    bank: PredictorBank,
+    top: int,
+    gamma: float = 0.95,
+    seed: int = 0,
+    feasible: np.ndarray | None = None,
 ) -> Strategy:
+    """A strategy by name; `feasible` (states x actions) tells planners what can ever occur."""
     try:
         cls = STRATEGIES[name]
     except KeyError:
         raise ValueError(
             f"unknown method {name!r}: choose from {', '.join(sorted(STRATEGIES))}"
         ) from None
+    if issubclass(cls, PlanningStrategy):
+        return cls(bank, top, gamma, seed, feasible)
     return cls(bank, top, gamma, seed)
 
 

@@ -194,12 +194,20 @@ def lspi(
     basis: Basis | None = None,
     initial_policy: np.ndarray | None = None,
     max_iterations: int = 50,
+    feasible: np.ndarray | None = None,
 ) -> LSPIResult:
-    """Policy iteration with LSTDQ-Model evaluation, warm-started from `initial_policy`."""
+    """Policy iteration with LSTDQ-Model evaluation, warm-started from `initial_policy`.
+
+    feasible[s, a] False marks pairs that cannot occur (e.g. any action but "no overlap" on
+    the table): the policy never takes them and the returned Q is -inf there.
+    """
     ns, na = mdp.n_states, mdp.n_actions
-    policy = (
-        np.zeros(ns, dtype=int) if initial_policy is None else np.asarray(initial_policy).copy()
-    )
+    if feasible is not None and not feasible.any(axis=1).all():
+        raise ValueError("every state needs at least one feasible action")
+    first_feasible = np.zeros(ns, dtype=int) if feasible is None else feasible.argmax(axis=1)
+    policy = first_feasible.copy() if initial_policy is None else np.asarray(initial_policy).copy()
+    if feasible is not None:
+        policy = np.where(feasible[np.arange(ns), policy], policy, first_feasible)
     tabular = basis is None or isinstance(basis, TabularBasis)
     q = np.zeros((ns, na))
     for iteration in range(1, max_iterations + 1):
@@ -207,6 +215,8 @@ def lspi(
             q = evaluate_tabular(mdp, policy)
         else:
             q = q_from_weights(mdp, basis, lstdq_model(mdp, basis, policy))
+        if feasible is not None:
+            q = np.where(feasible, q, -np.inf)
         # Keep the current action on ties so that policy iteration terminates.
         best = q.argmax(axis=1)
         keep = q[np.arange(ns), policy] >= q[np.arange(ns), best] - 1e-12
@@ -244,6 +254,7 @@ class Planner:
         gamma: float = 0.95,
         reward: str = "query",
         basis: Basis | None = None,
+        feasible: np.ndarray | None = None,
     ) -> None:
         if not 0.0 <= gamma < 1.0:
             raise ValueError(f"gamma must be in [0, 1), got {gamma}")
@@ -252,7 +263,16 @@ class Planner:
         if reward not in ("query", "confidence"):
             raise ValueError(f"unknown reward kind {reward!r}: use 'query' or 'confidence'")
         self.bank, self.top, self.gamma, self.reward, self.basis = bank, top, gamma, reward, basis
-        self.policy = np.zeros(top + 1, dtype=int)
+        if feasible is not None:
+            feasible = np.asarray(feasible, dtype=bool)
+            if feasible.shape != (top + 1, bank.n_actions):
+                raise ValueError(f"feasible must have shape {(top + 1, bank.n_actions)}")
+            feasible = feasible.copy()
+            feasible[top] = True  # the absorbing state: its actions do nothing anyway
+        self.feasible = feasible
+        self.policy = (
+            np.zeros(top + 1, dtype=int) if feasible is None else self.feasible.argmax(axis=1)
+        )
         self.q = np.zeros((top + 1, bank.n_actions))
         self.calls = 0
         self._mdp: HeightMDP | None = None
@@ -267,7 +287,9 @@ class Planner:
             self._mdp.transitions[rows] = transition_model(self.bank, self.top, rows)
             self._mdp.rewards[rows] = phantom_rewards(self.bank, self.top, self.reward, rows)
         self._seen = self.bank.version[: self.top + 1].copy()
-        result = lspi(self._mdp, self.basis, self.policy)
+        if self.feasible is not None:
+            self._mdp.rewards[~self.feasible] = 0.0  # no phantom reward for what cannot happen
+        result = lspi(self._mdp, self.basis, self.policy, feasible=self.feasible)
         self.policy, self.q = result.policy, result.q
         self.calls += 1
         return self.q
