@@ -125,6 +125,8 @@ class CuriosityNode(Node):
                 description="ResetWorld service called when blocks leave the reachable area"
             ),
         )
+        p("stuck_reset", 3, _int("ask for a reset after this many experiments in a row whose "
+                                 "setting offered only the table (0: never)", 0, 1000))
         p("frame_id", "world", ParameterDescriptor(description="frame of the markers"))
 
         g = self.get_parameter
@@ -217,6 +219,7 @@ class CuriosityNode(Node):
         self._started_at = time.monotonic()
         self._done_this_session = 0
         self._dropped = 0
+        self._table_only = 0
         self.publish_state()
         self.get_logger().info(
             f"strategy {self.strategy_name}, heights 0..{self.max_height}, {self.n_actions} "
@@ -309,13 +312,19 @@ class CuriosityNode(Node):
         )
         # the memory must have taken this experiment into account before the next observation
         self.world.wait_for_blocks(newer_than=max(before, self.world.blocks_count()))
-        self._maybe_reset()
+        # A scene that offers nothing but the table (say, a stack whose top is beyond reach
+        # and one loose block) cannot teach anything: have it reset, as a person would.
+        self._table_only = self._table_only + 1 if execution.available == [0] else 0
+        limit = self.get_parameter("stuck_reset").value
+        self._maybe_reset(force=bool(limit) and self._table_only >= limit,
+                          why="only the table offered")
 
-    def _maybe_reset(self, force: bool = False) -> None:
+    def _maybe_reset(self, force: bool = False, why: str = "repeated failures") -> None:
         away = self.world.blocks_out_of_reach()
         if not away and not force:
             return
-        reason = f"blocks out of reach: {', '.join(away)}" if away else "repeated failures"
+        self._table_only = 0
+        reason = f"blocks out of reach: {', '.join(away)}" if away else why
         try:
             message = self.world.reset()
             self.get_logger().info(f"reset the world ({reason}): {message}")
@@ -328,6 +337,7 @@ class CuriosityNode(Node):
         return {
             "index": self.experiments,
             "setting": execution.setting,
+            "available": execution.available,
             "mode": MODE_NAMES[step.mode],
             "state": step.state,
             "action": step.action + 1,

@@ -33,6 +33,7 @@ class Execution:
 
     instance: FoveaInstance
     setting: int
+    available: list[int]
     moved_block: str
     attempts: int
     stage_s: dict = field(default_factory=dict)
@@ -183,7 +184,8 @@ class RosWorld:
         stages["judge_s"] = time.perf_counter() - t
         if label not in (-1, 1):
             raise ExperimentAborted(f"the judge gave no verdict (label {label})")
-        self.last = Execution(instance, self.setting_id, moved, attempts, stages)
+        available = sorted({int(i.state) for i in self.instances})
+        self.last = Execution(instance, self.setting_id, available, moved, attempts, stages)
         return label
 
     # -- steps ---------------------------------------------------------------------------
