@@ -276,8 +276,9 @@ def test_fovea_node_services(ros):
     assert not res.success and "world/blocks" in res.message
     pub = ros.helper.create_publisher(BlockArray, "world/blocks", STATE_QOS)
     pub.publish(blocks_msg([Block("red", "red", 0.18, 0.08, 0.3),
-                            Block("green", "green", 0.25, -0.08, -0.2),
-                            Block("blue", "blue", 0.25, -0.08, -0.1, support="green"),
+                            # within the 0.25 m reach for placing on a stack of two
+                            Block("green", "green", 0.22, -0.08, -0.2),
+                            Block("blue", "blue", 0.22, -0.08, -0.1, support="green"),
                             Block("yellow", "yellow", 0.20, 0.0, 0.5)]))
     ros.camera_info()
     for _ in range(50):

@@ -45,7 +45,18 @@ def cubic_extremes(c: Sequence[float], duration: float) -> tuple[float, float]:
     """(min, max) of c0 + c1 t + c2 t^2 + c3 t^3 over t in [0, duration]."""
     c0, c1, c2, c3 = c
     ts = [0.0, float(duration)]
-    roots = np.roots([3.0 * c3, 2.0 * c2, c1]) if (c3 or c2) else []
+    # Stationary points: roots of 3 c3 t^2 + 2 c2 t + c1. A leading coefficient negligible over
+    # this duration is dropped (np.roots overflows on subnormal ones).
+    a, b = 3.0 * c3, 2.0 * c2
+    size = abs(b) * duration + abs(c1)
+    if abs(a) * duration * duration <= 1e-12 * size:
+        a = 0.0
+    if a != 0.0:
+        roots = np.roots([a, b, c1])
+    elif b != 0.0:
+        roots = np.array([-c1 / b])
+    else:
+        roots = np.array([])
     ts += [float(r.real) for r in roots if abs(r.imag) < 1e-12 and 0.0 < r.real < duration]
     values = [c0 + c1 * t + c2 * t * t + c3 * t**3 for t in ts]
     return min(values), max(values)
