@@ -95,7 +95,9 @@ def test_launch_file_starts_the_same_nodes_with_a_backend_argument():
     nodes = {(kwargs(c)["package"], kwargs(c)["executable"]) for c in calls
              if getattr(c.func, "id", "") == "Node"}
     assert {("katana_sim", "sim_node"), ("katana_manipulation", "pick_place_executor"),
-            ("katana_driver", "katana_driver_node"), ("katana_driver", "camera_node")} <= nodes
+            ("katana_driver", "katana_driver_node"), ("katana_driver", "camera_node"),
+            ("katana_perception", "perception_node"), ("katana_perception", "block_memory_node"),
+            ("katana_perception", "fovea_node"), ("katana_curiosity", "curiosity_node")} <= nodes
     # every executable the launch file names is a console script of its package
     for pkg, exe in nodes:
         setup = (SRC / pkg / "setup.py").read_text()
@@ -107,6 +109,11 @@ def test_executables_are_installed_where_ros2_run_looks():
     if not prefix:
         pytest.skip("workspace not built/sourced (needs `make setup` and scripts/env.sh)")
     for pkg, exe in [("katana_sim", "sim_node"), ("katana_manipulation", "pick_place_executor"),
-                     ("katana_bringup", "katana-run")]:
+                     ("katana_bringup", "katana-run"), ("katana_bringup", "katana-demo"),
+                     ("katana_perception", "perception_node"),
+                     ("katana_perception", "block_memory_node"),
+                     ("katana_perception", "fovea_node"), ("katana_curiosity", "curiosity_node"),
+                     ("katana_curiosity", "katana-curiosity"),
+                     ("katana_driver", "katana_driver_node"), ("katana_driver", "camera_node")]:
         path = Path(prefix) / pkg / "lib" / pkg / exe
         assert path.is_file() and os.access(path, os.X_OK), path
