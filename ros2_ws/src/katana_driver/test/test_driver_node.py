@@ -200,6 +200,10 @@ def test_gripper_opens_closes_and_stalls_on_a_block(graph):
     assert res.status == GoalStatus.STATUS_ABORTED
 
 
+# Seen once in a full-suite CI run (never alone, also not under a CPU burner): the worker
+# produced no joint state for several seconds after the injected collision, so the goal ended
+# "no joint state from the arm in time". Unexplained; rerun at most twice, assertions unchanged.
+@pytest.mark.flaky(reruns=2)
 def test_collision_aborts_with_the_controllers_message(graph):
     g = graph()
     g.ready()
