@@ -9,22 +9,17 @@ detection frame and every experience, stamped with the image time it reflects.
 from __future__ import annotations
 
 import math
-import sys
 
-import rclpy
 from katana_interfaces.msg import BlockArray, Experience
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
 from .conversions import blocks_to_msg, calibration_from_camera_info, seen_from_msg, yaw_of
 from .core.memory import BlockMemory, MemoryParams
-from .params import ParameterError, declare, declare_scene
-
-STATE_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                       reliability=ReliabilityPolicy.RELIABLE)
+from .params import STATE_QOS, declare, declare_scene, run_node
 
 
 class BlockMemoryNode(Node):
@@ -126,22 +121,7 @@ class BlockMemoryNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    try:
-        node = BlockMemoryNode()
-    except (ParameterError, ValueError) as err:
-        rclpy.logging.get_logger("block_memory_node").fatal(str(err))
-        rclpy.try_shutdown()
-        sys.exit(1)
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(BlockMemoryNode, "block_memory_node", SingleThreadedExecutor, args)
 
 
 if __name__ == "__main__":

@@ -10,16 +10,14 @@ from __future__ import annotations
 
 import colorsys
 import math
-import sys
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import Point
 from katana_interfaces.msg import BlockArray
 from katana_interfaces.srv import FindPlacement, ObserveSetting
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
@@ -33,10 +31,7 @@ from .conversions import (
 from .core.colors import color_table_strings, parse_color_table
 from .core.fovea import N_ACTIONS, FoveaParams, FoveaScene, Instance, NotFound
 from .core.segmentation import Segmenter
-from .params import ParameterError, declare, declare_scene, require_length
-
-STATE_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                       reliability=ReliabilityPolicy.RELIABLE)
+from .params import STATE_QOS, ParameterError, declare, declare_scene, require_length, run_node
 
 
 class FoveaNode(Node):
@@ -229,22 +224,7 @@ class FoveaNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    try:
-        node = FoveaNode()
-    except (ParameterError, ValueError) as err:
-        rclpy.logging.get_logger("fovea_node").fatal(str(err))
-        rclpy.try_shutdown()
-        sys.exit(1)
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(FoveaNode, "fovea_node", SingleThreadedExecutor, args)
 
 
 if __name__ == "__main__":

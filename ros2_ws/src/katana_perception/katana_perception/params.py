@@ -4,11 +4,15 @@ naming the parameter and its valid range)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import sys
+from collections.abc import Callable, Sequence
 
+import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from .core.calibration import DEFAULT_CAMERA_POSITION, DEFAULT_CAMERA_RPY
 
@@ -78,3 +82,29 @@ def declare_scene(node: Node) -> dict:
             raise ParameterError(f"parameter 'extrinsics_file': no such file "
                                  f"{out['extrinsics_file']!r}")
     return out
+
+
+#: world/blocks and other state topics: the latest value, kept for late subscribers
+STATE_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                       reliability=ReliabilityPolicy.RELIABLE)
+
+
+def run_node(make_node: Callable[[], Node], name: str, executor_type: type[Executor],
+             args: list[str] | None = None) -> None:
+    """The nodes' main(): an invalid parameter stops start-up with its message and exit 1."""
+    rclpy.init(args=args)
+    try:
+        node = make_node()
+    except (ParameterError, ValueError) as err:
+        rclpy.logging.get_logger(name).fatal(str(err))
+        rclpy.try_shutdown()
+        sys.exit(1)
+    executor = executor_type()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()

@@ -11,16 +11,13 @@ judges the newest image against them.
 
 from __future__ import annotations
 
-import sys
-
 import cv2
 import numpy as np
-import rclpy
 from katana_interfaces.msg import BlockArray
 from katana_interfaces.srv import JudgePlacement
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
@@ -35,10 +32,7 @@ from .conversions import (
 from .core.colors import color_table_strings, parse_color_table
 from .core.judge import Judge, JudgeParams
 from .core.segmentation import Segmenter
-from .params import ParameterError, declare, declare_scene
-
-STATE_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                       reliability=ReliabilityPolicy.RELIABLE)
+from .params import STATE_QOS, ParameterError, declare, declare_scene, run_node
 
 
 class PerceptionNode(Node):
@@ -207,22 +201,7 @@ class PerceptionNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    try:
-        node = PerceptionNode()
-    except (ParameterError, ValueError) as err:
-        rclpy.logging.get_logger("perception_node").fatal(str(err))
-        rclpy.try_shutdown()
-        sys.exit(1)
-    executor = MultiThreadedExecutor()
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(PerceptionNode, "perception_node", MultiThreadedExecutor, args)
 
 
 if __name__ == "__main__":
