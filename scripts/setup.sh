@@ -46,6 +46,11 @@ fi
 build_stamp=$root/install/.build-ok
 # Module folders are symlinked (--symlink-install), so editing or adding a module needs no build.
 changed() {
+  # a package that was never built (added while a build ran, or just now) needs one
+  for pkg in ros2_ws/src/*/package.xml; do
+    pkg=$(basename "$(dirname "$pkg")")
+    [ -d "install/$pkg" ] || { echo "$pkg"; return; }
+  done
   find ros2_ws/src -type f -newer "$build_stamp" -not -path '*/__pycache__/*' \
     -not -path '*/.hypothesis/*' -not -path '*/test/*' \
     -not -regex 'ros2_ws/src/\([^/]*\)/\1/.*' -print -quit

@@ -156,3 +156,7 @@ DEFAULT_COLOURS: tuple[str, ...] = tuple(COLOURS)
 TABLE_COLOUR = (0.78, 0.78, 0.78, 1.0)
 TABLE_SIZE = (1.0, 1.0, 0.03)
 TABLE_CENTRE_XY = (0.15, 0.0)
+#: Overhead camera: optical centre in the world frame (m) and fixed-axis roll, pitch, yaw (rad)
+#: of camera_optical_frame, looking straight down with image x along world -y.
+CAMERA_POSITION: tuple[float, float, float] = (0.22, 0.0, 0.75)
+CAMERA_RPY: tuple[float, float, float] = (math.pi, 0.0, -math.pi / 2)

@@ -1,0 +1,9 @@
+"""What every node of the Katana curiosity graph shares, so that each thing is done one way.
+
+- `params`: declared, validated, live or read-only parameters (`Param`, `declare_parameters`,
+  `ParameterError`).
+- `node_runner`: `run_node`, every node's main(): start-up errors, signals, shutdown, exit codes.
+- `qos`: the QoS profiles, named by purpose.
+- `conversions`: stamps and durations to and from seconds.
+- `futures`: the bounded wait on an rclpy future from a callback thread.
+"""
