@@ -11,7 +11,6 @@ the executor is shut down; then the node is destroyed, so no callback runs on a 
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable
 
 import rclpy

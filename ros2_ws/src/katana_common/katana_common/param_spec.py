@@ -80,8 +80,11 @@ class Param:
 
     def _scalar_problem(self, value: Any) -> str | None:
         if isinstance(value, bool) and not isinstance(self.default, bool):
-            if not (isinstance(self.default, list) and self.default and
-                    isinstance(self.default[0], bool)):
+            if not (
+                isinstance(self.default, list)
+                and self.default
+                and isinstance(self.default[0], bool)
+            ):
                 return f"{value!r} is not a number or text"
         if isinstance(value, int | float) and not isinstance(value, bool):
             if not math.isfinite(value):

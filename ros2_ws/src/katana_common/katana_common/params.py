@@ -86,8 +86,11 @@ class NodeParameters(Mapping):
             raise TypeError(f"parameter '{spec.name}': an empty list default has no type")
         try:
             value = self._node.declare_parameter(spec.name, default, spec.descriptor()).value
-        except (InvalidParameterValueException, InvalidParameterTypeException,
-                ParameterException) as exc:
+        except (
+            InvalidParameterValueException,
+            InvalidParameterTypeException,
+            ParameterException,
+        ) as exc:
             raise ParameterError(
                 f"parameter '{spec.name}': {_first_line(exc)}; valid: {spec.valid_text()}"
             ) from exc
@@ -95,9 +98,7 @@ class NodeParameters(Mapping):
             value = list(value)
         reason = spec.problem(value)
         if reason:
-            raise ParameterError(
-                f"parameter '{spec.name}' {reason}; valid: {spec.valid_text()}"
-            )
+            raise ParameterError(f"parameter '{spec.name}' {reason}; valid: {spec.valid_text()}")
         return value
 
     def _refuse_unknown_overrides(self) -> None:
@@ -105,8 +106,10 @@ class NodeParameters(Mapping):
         # ignores the ones never declared; there is no public accessor, so read it here.
         overrides = getattr(self._node, "_parameter_overrides", {}) or {}
         unknown = sorted(
-            name for name in overrides
-            if name not in self._specs and name not in _TOLERATED_UNDECLARED
+            name
+            for name in overrides
+            if name not in self._specs
+            and name not in _TOLERATED_UNDECLARED
             and not name.startswith("qos_overrides.")
             and not self._node.has_parameter(name)
         )

@@ -84,8 +84,11 @@ def context():
 
 
 def _node(context, overrides=()):
-    return Node(f"params_{uuid.uuid4().hex[:8]}", context=context,
-                parameter_overrides=[Parameter(k, value=v) for k, v in overrides])
+    return Node(
+        f"params_{uuid.uuid4().hex[:8]}",
+        context=context,
+        parameter_overrides=[Parameter(k, value=v) for k, v in overrides],
+    )
 
 
 def test_defaults_are_declared_and_read_back(context):
@@ -98,8 +101,15 @@ def test_defaults_are_declared_and_read_back(context):
 
 @pytest.mark.parametrize(
     "name, value",
-    [("alpha", 0.0), ("alpha", 1e9), ("strategy", "bogus"), ("max_height", 9),
-     ("reach", [0.1, 2.0]), ("run_dir", ""), ("alpha", "text")],
+    [
+        ("alpha", 0.0),
+        ("alpha", 1e9),
+        ("strategy", "bogus"),
+        ("max_height", 9),
+        ("reach", [0.1, 2.0]),
+        ("run_dir", ""),
+        ("alpha", "text"),
+    ],
 )
 def test_an_invalid_override_names_the_parameter_and_its_valid_values(context, name, value):
     node = _node(context, [(name, value)])
@@ -197,8 +207,13 @@ def _start(*ros_args):
     # a domain of this test process alone, so parallel runs on one machine cannot meet
     domain = str(120 + os.getpid() % 100)
     env = dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    return subprocess.Popen([sys.executable, "-c", NODE_SCRIPT, "--ros-args", *ros_args],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    return subprocess.Popen(
+        [sys.executable, "-c", NODE_SCRIPT, "--ros-args", *ros_args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
 
 
 def test_a_bad_parameter_exits_2_with_one_line_naming_it():

@@ -1,0 +1,172 @@
+"""The stacking skill and the measured truth: constructed models, hand-computed answers."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from katana_curiosity.core.metrics import bernoulli_kl
+from katana_curiosity.core.planner import HeightMDP, value_iteration
+from katana_curiosity.core.robot_truth import TruthTable, kl_to_truth, wilson_interval
+from katana_curiosity.core.skill import LearnedModel, SkillWorld, StackingSkill, build_stack
+
+N_ACTIONS = 6
+
+# A model that learned the robot's world as intuition has it: on a block, action 6 (all five
+# points on the block below) stays, action 1 (no overlap) falls; the table is always stable.
+GOOD = np.array(
+    [
+        [1.0, 1.0, 1.0, 1.0, 1.0, 1.0],
+        [-0.9, -0.6, -0.2, 0.3, 0.7, 0.95],
+        [-0.95, -0.7, -0.4, 0.1, 0.5, 0.9],
+        [-0.95, -0.8, -0.5, -0.1, 0.3, 0.8],
+    ]
+)
+
+
+def test_the_tricky_situation_starts_again_from_height_one():
+    """Figure 14: a stack of two that offers only poor placements, and single blocks. The
+    model predicts a block on the two-stack falls, so the skill builds on a single block."""
+    skill = StackingSkill(LearnedModel.from_margins(GOOD), target_height=3)
+    # the two-stack is skewed: its top offers only actions 2 and 3; single blocks offer all
+    offered = [(0, 1), (2, 2), (2, 3)] + [(1, a) for a in range(1, 7)]
+    choice = skill.choose(offered)
+    assert (choice.state, choice.action) == (1, 6)
+    # a squarely built two-stack is the better base
+    assert (skill.choose(offered + [(2, 6)]).state, skill.choose(offered + [(2, 6)]).action) == (
+        2,
+        6,
+    )
+
+
+def test_planned_values_equal_value_iteration_on_the_same_mdp():
+    skill = StackingSkill(LearnedModel.from_margins(GOOD), target_height=3)
+    reference = value_iteration(HeightMDP(skill.mdp.transitions, skill.mdp.rewards, 0.95))
+    feasible = np.isfinite(skill.q)
+    assert feasible[0].sum() == 1  # on the table only action 1
+    np.testing.assert_allclose(skill.q[1:3], reference[1:3], atol=1e-9)
+    # by hand: from height 2 with action 6 the goal is reached with P = (1 + 0.9) / 2
+    assert skill.q[2, 5] >= 0.95 - 1e-12 and skill.success[2, 5] == pytest.approx(0.95)
+
+
+def test_nothing_offered_below_the_goal_gives_no_choice():
+    skill = StackingSkill(LearnedModel.from_margins(GOOD), target_height=2)
+    assert skill.choose([(2, 6), (3, 1)]) is None
+    with pytest.raises(ValueError):
+        StackingSkill(LearnedModel.from_margins(GOOD), target_height=0)
+
+
+class BlocksOnTable(SkillWorld):
+    """Four blocks; placements stay with the true probability; a fall topples the stack's top
+    blocks to the table, as in section 3.1. Stacks offer every action (a square stack)."""
+
+    def __init__(self, truth: np.ndarray, stacks: list[int], seed: int) -> None:
+        self.truth, self.stacks, self.rng = truth, list(stacks), random.Random(seed)
+        self.blocks = sum(stacks)
+
+    def offered(self):
+        pairs = [(0, 1)]
+        for height in sorted(set(self.stacks)):
+            pairs += [(height, a) for a in range(1, N_ACTIONS + 1)]
+        return pairs
+
+    def highest_stack(self) -> int:
+        return max(self.stacks)
+
+    def place(self, state: int, action: int) -> int:
+        target = self.stacks.index(state) if state > 0 else None
+        # the block to move: the top of the lowest other stack
+        source = min(
+            (i for i in range(len(self.stacks)) if i != target), key=lambda i: self.stacks[i]
+        )
+        self.stacks[source] -= 1
+        if target is None:
+            self.stacks.append(1)
+            label = 1
+        elif self.rng.random() < (1 + self.truth[state, action - 1]) / 2:
+            self.stacks[target] += 1
+            label = 1
+        else:  # the placed block and the blocks above a random level topple to the table
+            keep = self.rng.randint(1, state)
+            self.stacks += [1] * (state - keep + 1)
+            self.stacks[target] = keep
+            label = -1
+        self.stacks = [h for h in self.stacks if h > 0]
+        assert sum(self.stacks) == self.blocks
+        return label
+
+
+def _success_rate(model: np.ndarray, trials: int = 60) -> float:
+    skill = StackingSkill(LearnedModel.from_margins(model), target_height=3)
+    wins = 0
+    for seed in range(trials):
+        world = BlocksOnTable(GOOD, [2, 1, 1] if seed % 2 else [1, 1, 1, 1], seed)
+        wins += build_stack(world, skill, max_placements=8).reached
+    return wins / trials
+
+
+def test_a_learned_model_stacks_more_often_than_an_untrained_one():
+    learned = _success_rate(GOOD)
+    untrained = _success_rate(np.zeros_like(GOOD))
+    assert learned > untrained + 0.2
+
+
+def test_build_stack_is_bounded_and_counts_falls():
+    skill = StackingSkill(LearnedModel.from_margins(GOOD), target_height=3)
+    world = BlocksOnTable(-np.ones_like(GOOD), [1, 1, 1, 1], seed=0)  # everything falls
+    result = build_stack(world, skill, max_placements=5)
+    assert not result.reached and len(result.placements) == 5
+    assert result.falls == 5 and result.reason == "placement bound reached"
+
+
+# -- measured truth --------------------------------------------------------------------------
+@given(st.integers(0, 200), st.integers(0, 200))
+def test_wilson_interval_contains_the_proportion_and_matches_the_formula(k, extra):
+    n = k + extra
+    lo, hi = wilson_interval(k, n)
+    if n == 0:
+        assert (lo, hi) == (0.0, 1.0)
+        return
+    p, z = k / n, 1.959963984540054
+    # independent: the interval's ends are the roots of (p - x)^2 = z^2 x (1 - x) / n
+    for x in (lo, hi):
+        if 0.0 < x < 1.0:
+            assert (p - x) ** 2 == pytest.approx(z * z * x * (1 - x) / n, abs=1e-9)
+    assert lo <= p <= hi
+
+
+def test_truth_table_json_round_trip_and_impossible_pairs():
+    truth = TruthTable(4, N_ACTIONS)
+    for a in range(2, 7):
+        truth.mark_impossible(0, a)
+    for label in (1, 1, 1, -1):
+        truth.record(1, 6, label)
+    truth.record(0, 1, 1)
+    with pytest.raises(ValueError):
+        truth.record(0, 3, 1)
+    data = truth.to_json()
+    assert data["p_stable"]["1"]["6"] == 0.75 and "3" not in data["p_stable"]["0"]
+    assert [0, 3] in data["impossible"] and data["p_stable"]["2"]["6"] is None
+    again = TruthTable.from_json(data)
+    np.testing.assert_array_equal(again.possible, truth.possible)
+    np.testing.assert_array_equal(again.trials, truth.trials)
+
+
+def test_kl_to_truth_against_a_hand_computed_table():
+    truth = TruthTable(2, 2)
+    truth.mark_impossible(0, 2)
+    truth.record(0, 1, 1)  # p = 1
+    for label in (1, -1):
+        truth.record(1, 1, label)  # p = 0.5
+    for label in (1, 1, 1, -1):
+        truth.record(1, 2, label)  # p = 0.75
+    learned = np.array([[0.0, 0.7], [0.0, 0.0]])  # q = 0.5 everywhere measured
+    kl = kl_to_truth(truth, learned)
+    assert kl[0] == pytest.approx(math.log(2.0))  # KL(1 || 0.5)
+    expected_h1 = (0.0 + 0.75 * math.log(1.5) + 0.25 * math.log(0.5)) / 2
+    assert kl[1] == pytest.approx(expected_h1)
+    assert kl[1] == pytest.approx(float(bernoulli_kl([0.5, 0.75], [0.5, 0.5]).mean()))
