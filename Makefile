@@ -1,4 +1,4 @@
-# The command contract of DESIGN.md: setup | test | demo | paper | bench.
+# The command contract of docs/DESIGN.md: setup | test | demo | paper | bench.
 SHELL := /bin/bash
 VENV := .venv
 ENV := source scripts/env.sh &&
@@ -23,6 +23,18 @@ demo: setup
 
 paper: setup
 	@$(ENV) katana-curiosity paper --jobs $(JOBS) --out runs/paper
+
+# The robot experiment (issue 9): seeds x experiments x q1 and random on the fast sim, each run
+# its own graph and ROS domain, against the measured truth shipped in docs/.
+ROBOT_SEEDS ?= 4
+ROBOT_EXPERIMENTS ?= 60
+ROBOT_DOMAIN ?= 40
+
+.PHONY: robot-paper
+robot-paper: setup
+	@$(ENV) katana-robot paper --seeds $(ROBOT_SEEDS) --experiments $(ROBOT_EXPERIMENTS) \
+		--methods q1,random --jobs $(JOBS) --domain-base $(ROBOT_DOMAIN) \
+		--truth docs/robot_truth.json --out runs/robot-paper
 
 bench: setup
 	@$(ENV) python bench/run.py

@@ -1,6 +1,7 @@
 """Speed of the simulation: one 640x480 render, physics speed with the arm moving, and whole
 pick-and-places through the pick_and_place action (sim_node + pick_place_executor in one process,
-real_time_factor 0). `run()` returns the figures; bench/run.py writes bench/results/sim.json.
+real_time_factor 0: lock-step); bench_arm.py measures the arm in depth. `run()` returns the
+figures; bench/run.py writes bench/results/sim.json.
 
     python bench/bench_sim.py        # prints the figures and writes bench/results/sim.json
 """
@@ -22,9 +23,9 @@ for pkg in ("katana_description", "katana_sim", "katana_manipulation", "katana_b
 
 
 def bench_render(frames: int = 30) -> float:
-    from katana_sim.core import SimConfig, SimWorld
+    from katana_sim.core import PhysicsSim, SimConfig
 
-    world = SimWorld(SimConfig(seed=1))
+    world = PhysicsSim(SimConfig(seed=1))
     try:
         world.render()  # warm-up
         t0 = time.perf_counter()
@@ -39,9 +40,9 @@ def bench_physics(sim_seconds: float = 20.0) -> float:
     """Simulated seconds per wall second with the arm sweeping back and forth (no rendering)."""
     import numpy as np
     from katana_description import models as m
-    from katana_sim.core import SimConfig, SimWorld, TrajectoryGoal
+    from katana_sim.core import PhysicsSim, SimConfig, TrajectoryGoal
 
-    world = SimWorld(SimConfig(seed=1))
+    world = PhysicsSim(SimConfig(seed=1))
     try:
         a = list(m.PARK_POSE)
         b = [0.5, 1.2, -1.5, 1.2, 0.5]
@@ -61,22 +62,25 @@ def bench_physics(sim_seconds: float = 20.0) -> float:
 
 
 def bench_pick_place(runs: int = 5) -> tuple[float, float, int]:
-    """Median wall seconds of one pick-and-place through the action, its sim/wall speed, and
-    how many succeeded."""
-    from katana_bringup.run import build_nodes, default_params_files, load_params
+    """Median wall seconds of one pick-and-place through the action (sim_node and
+    pick_place_executor in one process, the fast lock-step sim), its sim/wall speed, and how many
+    succeeded."""
     from katana_bringup.testing import InProcessGraph
     from katana_interfaces.action import PickAndPlace
     from katana_manipulation.core.pick_place import PickPlacePlanner, PickPlaceRequest, PlanError
+    from katana_manipulation.pick_place_executor import PickPlaceExecutor
+    from katana_sim.sim_node import SimNode
     from rclpy.action import ActionClient
+    from rclpy.parameter import Parameter
 
-    params = load_params(default_params_files("sim"))
-    params["sim_node"].update(real_time_factor=0.0, seed=0)
     planner = PickPlacePlanner()
     walls, speeds, ok = [], [], 0
     with InProcessGraph() as g:
-        nodes = build_nodes("sim", params, g.context)
-        g.add(*nodes)
-        sim = nodes[0]
+        sim = SimNode(context=g.context, parameter_overrides=[
+            Parameter("real_time_factor", value=0.0), Parameter("seed", value=0),
+            Parameter("use_sim_time", value=True)])
+        g.add(sim, PickPlaceExecutor(context=g.context, parameter_overrides=[  # as sim.yaml
+            Parameter("use_sim_time", value=True), Parameter("min_segment_time_s", value=0.1)]))
         probe = g.node("bench_sim_probe")
         client = ActionClient(probe, PickAndPlace, "pick_and_place")
         assert client.wait_for_server(timeout_sec=10.0)

@@ -1,10 +1,20 @@
 """backend:=hardware: the whole graph starts against the protocol EMULATOR (not an arm) and a
-SUBSTITUTE camera, with the same node, topic and action names as the simulated graph."""
+SUBSTITUTE camera, with the same node, topic and action names as the simulated graph; and
+`katana-run --backend hardware` with the shipped YAML (overriding only the emulator's host and
+port and the substitute camera) runs the curiosity loop."""
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+import time
+
 import pytest
 from katana_bringup.run import build_nodes, default_params_files, load_params
+from katana_description import models
+from katana_driver.core.encoders import EncoderModel
 from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
 from katana_interfaces.msg import LearnerState
 from rclpy.action import get_action_names_and_types
@@ -46,8 +56,8 @@ def test_hardware_graph_starts_against_the_emulator_and_a_substitute_camera(
     params = load_params(default_params_files("hardware"))
     params["katana_driver_node"] = {"host": host, "port": port}
     params["camera_node"] = {"device": "substitute", "rate": 10.0}
+    assert params["/**"]["use_sim_time"] is False  # hardware: wall time for every node
     params["curiosity_node"].update(run_dir=str(tmp_path), max_experiments=1,
-                                    reset_service="katana_driver_node/reset_world",
                                     service_timeout_s=2.0, blocks_timeout_s=2.0)
     g = ros_graph
     nodes = build_nodes("hardware", params, g.context)
@@ -77,3 +87,44 @@ def test_hardware_graph_starts_against_the_emulator_and_a_substitute_camera(
     # the emulated controller is being talked to: the driver calibrated it
     driver = next(n for n in nodes if n.get_name() == "katana_driver_node")
     g.wait_for(lambda: driver.worker.ready, timeout=30.0)
+
+
+@pytest.mark.timeout(900)
+def test_katana_run_hardware_runs_the_curiosity_loop_against_the_emulator(emulator, tmp_path):
+    # The emulator has no blocks: its gripper stalls where a 4 cm block would hold the fingers,
+    # so that a grasp reads as holding one (the substitute camera's squares do not move).
+    block_angle = models.finger_angle_for_opening(0.04)
+    emulator.model.gripper_stall_at = int(EncoderModel.gripper_angle_to_encoder(block_angle))
+    host, port = emulator.address
+    overlay = tmp_path / "emulator.yaml"
+    overlay.write_text(
+        "katana_driver_node:\n  ros__parameters:\n"
+        f"    host: \"{host}\"\n    port: {port}\n"
+        "camera_node:\n  ros__parameters:\n    device: \"substitute\"\n")
+    env = dict(os.environ, ROS_DOMAIN_ID=str(120 + os.getpid() % 100),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    log = tmp_path / "run" / "katana-run.log"
+    log.parent.mkdir()
+    with open(log, "w") as out:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "katana_bringup.run", "--backend", "hardware",
+             "--params", str(overlay)], cwd=tmp_path / "run", env=env, stdout=out,
+            stderr=subprocess.STDOUT)
+    experiences = tmp_path / "run" / "runs" / "robot" / "experience.jsonl"
+    deadline = time.monotonic() + 780
+    done = 0
+    try:
+        while done < 20:
+            assert proc.poll() is None, log.read_text()[-4000:]
+            assert time.monotonic() < deadline, (
+                f"{done} experiments in 780 s\n" + log.read_text()[-4000:])
+            if experiences.exists():
+                done = experiences.read_text().count("\n")  # one complete line each
+            time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, log.read_text()[-4000:]
+    assert "Traceback" not in log.read_text()

@@ -20,6 +20,7 @@ setup(
         "console_scripts": [
             "katana-curiosity = katana_curiosity.cli:main",
             "curiosity_node = katana_curiosity.curiosity_node:main",
+            "skill_node = katana_curiosity.skill_node:main",
         ],
     },
 )

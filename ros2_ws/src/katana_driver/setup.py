@@ -18,12 +18,11 @@ setup(
     zip_safe=True,
     maintainer="Katana curiosity maintainers",
     maintainer_email="katana-curiosity@example.org",
-    description="Katana protocol driver, protocol-level emulator and overhead camera node.",
+    description="Katana protocol driver (katana_driver_node) and protocol-level emulator.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "katana_driver_node = katana_driver.katana_driver_node:main",
-            "camera_node = katana_driver.camera_node:main",
             "katana-emulator = katana_driver.emulator:main",
         ],
     },

@@ -24,7 +24,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .run import EXECUTOR_THREADS, build_nodes, default_params_files, load_params
+from .run import (
+    EXECUTOR_THREADS,
+    KATANA_RUN_SHUTDOWN_LIMIT_S,
+    add_graph_arguments,
+    build_nodes,
+    default_params_files,
+    load_params,
+)
 
 FRAMES_FIRST = 6  # frames of the first experiments, then one every FRAMES_EVERY
 FRAMES_EVERY = 25
@@ -131,9 +138,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="run folder (default runs/demo-<time>; an existing one resumes)")
     parser.add_argument("--strategy", default=None, help="q1 (default), q10, conf or random")
     parser.add_argument("--seed", type=int, default=0, help="seed of the sim and the learner")
-    parser.add_argument("--backend", choices=("sim", "hardware"), default="sim")
-    parser.add_argument("--params", action="append", default=None, metavar="FILE",
-                        help="ROS parameter YAML (default: the package's config)")
+    add_graph_arguments(parser)  # --backend, --params (overlays), --record
     parser.add_argument("--real-time-factor", type=float, default=0.0,
                         help="sim pace: 0 as fast as possible (default), 1 wall-clock")
     parser.add_argument("--timeout", type=float, default=None, metavar="S",
@@ -146,12 +151,12 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out or Path("runs") / f"demo-{datetime.now():%Y%m%d-%H%M%S}"
     out.mkdir(parents=True, exist_ok=True)
 
-    params = load_params(args.params or default_params_files(args.backend))
+    params = load_params([*default_params_files(args.backend), *args.params])
     curiosity = params.setdefault("curiosity_node", {})
     curiosity.update(run_dir=str(out), max_experiments=args.experiments, seed=args.seed)
     if args.strategy:
         curiosity["strategy"] = args.strategy
-    if args.params is None:
+    if not args.params:
         # Headless: nobody looks at the debug image, and fewer camera frames leave the shared
         # process's CPU to the physics (the judge still waits for frames taken after parking).
         params.setdefault("perception_node", {})["publish_debug_image"] = False
@@ -160,55 +165,59 @@ def main(argv: list[str] | None = None) -> int:
     if args.backend == "sim":
         params.setdefault("sim_node", {}).update(seed=args.seed,
                                                  real_time_factor=args.real_time_factor)
-    else:
-        curiosity["reset_service"] = "katana_driver_node/reset_world"
 
     import rclpy
+    from katana_common.node_runner import spin_nodes
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
+    from rclpy.signals import SignalHandlerOptions
 
-    rclpy.init(args=ros_args)
+    # katana-demo handles SIGINT/SIGTERM itself (spin_nodes): the nodes stop before the context
+    rclpy.init(args=ros_args, signal_handler_options=SignalHandlerOptions.NO)
     try:
-        nodes = build_nodes(args.backend, params)
+        nodes = build_nodes(args.backend, params, record=args.record)
     except Exception as exc:
         print(f"katana-demo: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
     recorder_node = Node("demo_frame_recorder")
     recorder = FrameRecorder(recorder_node, out / "frames", ground_truth=args.backend == "sim")
-    executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS)
-    for node in [*nodes, recorder_node]:
-        executor.add_node(node)
     learner = next(n for n in nodes if n.get_name() == "curiosity_node")
     print(f"katana-demo: backend {args.backend}, {args.experiments} experiments "
           f"(strategy {learner.strategy_name}), run folder {out}", flush=True)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
     start = time.monotonic()
-    spinner.start()
     timeout = args.timeout or 30.0 * args.experiments + 60.0
-    try:
-        finished = learner.finished.wait(timeout)
-    except KeyboardInterrupt:
-        finished = False
-        print("katana-demo: interrupted; what was recorded is kept", file=sys.stderr)
+    spin_nodes([*nodes, recorder_node], "katana-demo", duration_s=timeout,
+               executor=MultiThreadedExecutor(num_threads=EXECUTOR_THREADS),
+               until=learner.finished, limit_s=KATANA_RUN_SHUTDOWN_LIMIT_S)
+    finished = learner.finished.is_set()
+    if not finished:
+        print("katana-demo: stopped before the last experiment; what was recorded is kept",
+              file=sys.stderr)
     wall = time.monotonic() - start
-    learner.stop()
     done = learner.experiments
-    executor.shutdown(timeout_sec=5.0)
-    for node in [*nodes, recorder_node]:
-        node.destroy_node()
-    rclpy.try_shutdown()
 
-    from katana_curiosity.core.robot_report import write_report
+    from katana_curiosity.core.robot_report import append_session, read_sessions, write_report
 
-    alpha = learner.rule.alpha
+    # this session's figures are kept beside the log, so a resumed run's summary covers all
+    append_session(out, {
+        "experiments_at_end": done, "wall_s": round(wall, 1),
+        "frames": [p.name for p in recorder.saved],
+        "judge_checked": len(recorder.agreement), "judge_agreed": int(sum(recorder.agreement)),
+        "dropped_by_reason": dict(learner.loop.dropped_total), "resets": learner.loop.resets,
+        "completed": bool(finished)})
+    sessions = read_sessions(out)
+    checked = sum(s.get("judge_checked", 0) for s in sessions)
+    agreed = sum(s.get("judge_agreed", 0) for s in sessions)
     summary = write_report(
-        out, n_actions=learner.n_actions, max_height=learner.max_height, alpha=alpha,
-        theta=learner.rule.theta,
+        out, n_actions=learner.n_actions, max_height=learner.max_height,
+        alpha=learner.rule.alpha, theta=learner.rule.theta,
         extra={"backend": args.backend, "strategy": learner.strategy_name, "seed": args.seed,
-               "wall_s": round(wall, 1), "frames": [p.name for p in recorder.saved],
-               "judge_agrees_with_sim": (round(sum(recorder.agreement) / len(recorder.agreement), 3)
-                                         if recorder.agreement else None),
+               "sessions": len(sessions),
+               "wall_s": round(sum(s.get("wall_s", 0.0) for s in sessions), 1),
+               "frames": [f for s in sessions for f in s.get("frames", [])],
+               "judge_agrees_with_sim": round(agreed / checked, 3) if checked else None,
+               "resets": sum(s.get("resets", 0) for s in sessions),
                "completed": bool(finished)},
     )
     status = "done" if finished else "stopped early"

@@ -1,11 +1,15 @@
 """katana-run: the whole node graph in one process (for machines without ros2 launch).
 
-    katana-run [--backend sim|hardware] [--params FILE ...] [--duration S]
+    katana-run [--backend sim|hardware] [--params FILE ...] [--duration S] [--record F.mcap]
+               [--ros-args ...]
 
 Loads standard ROS parameter YAML files (`node_name: {ros__parameters: {...}}`, with `/**` for
-every node) and hands each node its parameters as overrides, then spins every node on one
-MultiThreadedExecutor. launch/sim.launch.py starts the same nodes, with the same YAML, as
-separate processes for users with a full ROS 2 install.
+every node): the packaged ones (config/graph.yaml, then the backend's: backend_sim.yaml and
+sim.yaml, or backend_hardware.yaml), overlaid by each `--params FILE` in order. Each node gets
+its parameters as overrides (an unknown name stops it, naming the name), and every node spins
+on one MultiThreadedExecutor. launch/sim.launch.py starts the same nodes, with the same YAML,
+as separate processes for users with a full ROS 2 install. `--record F.mcap` adds a recorder
+of the run's topics (rosbag2 MCAP; katana_bringup.recorder_node).
 
 The graph has three layers: "arm" (the backend's arm and camera nodes, and the pick-and-place
 executor), "perception" (perception, block memory and fovea nodes) and "curiosity" (the
@@ -15,18 +19,24 @@ learner). `--layers` starts a subset, e.g. only the arm for a manipulation check
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import yaml
+from katana_common.node_runner import EXIT_INVALID_CONFIGURATION, spin_nodes
+from katana_common.params import ParameterError
 
 PACKAGE = "katana_bringup"
 BACKENDS = ("sim", "hardware")
 LAYERS = ("arm", "perception", "curiosity")
 #: threads of the shared executor: action callbacks that wait on other actions each hold one
 EXECUTOR_THREADS = 8
+#: longest wait for the whole graph's threads after a stop request, s (katana-run ends in 3 s)
+KATANA_RUN_SHUTDOWN_LIMIT_S = 2.5
 
 
 def config_dir() -> Path:
@@ -43,12 +53,28 @@ def config_dir() -> Path:
 
 
 def default_params_files(backend: str = "sim") -> list[Path]:
-    """graph.yaml (the nodes above the arm) plus the backend's own: sim.yaml for the sim; the
-    hardware nodes read katana_driver's hardware.yaml themselves."""
-    files = [config_dir() / "graph.yaml"]
+    """graph.yaml (the nodes above the arm, the scene under `/**`), then the backend's own:
+    backend_<name>.yaml (its clock) and, for the sim, sim.yaml; the hardware nodes read
+    katana_driver's hardware.yaml themselves (overlaid by these files' sections for them)."""
+    files = [config_dir() / "graph.yaml", config_dir() / f"backend_{backend}.yaml"]
     if backend == "sim":
         files.append(config_dir() / "sim.yaml")
     return files
+
+
+#: the nodes each backend starts (a YAML section for another name is a typo)
+NODE_NAMES = {
+    "sim": ("sim_node",),
+    "hardware": ("katana_driver_node", "camera_node"),
+}
+GRAPH_NODES = ("pick_place_executor", "perception_node", "block_memory_node", "fovea_node",
+               "curiosity_node", "run_recorder")
+
+
+def unknown_sections(backend: str, params: dict[str, dict[str, Any]]) -> list[str]:
+    """Node sections of the YAML that name no node of this backend's graph."""
+    known = {"/**", *NODE_NAMES.get(backend, ()), *GRAPH_NODES}
+    return sorted(name for name in params if name not in known)
 
 
 def load_params(paths: list[str | Path]) -> dict[str, dict[str, Any]]:
@@ -97,13 +123,15 @@ def _sim_nodes(params: dict, context) -> list:
 
 def _hardware_nodes(params: dict, context) -> list:
     try:
-        from katana_driver.bringup import build_hardware_nodes
+        from katana_driver.bringup import CAMERA, DRIVER, build_hardware_nodes
     except ImportError as exc:
         raise SystemExit(
             "katana-run: backend 'hardware' needs katana_driver (katana_driver.bringup."
             f"build_hardware_nodes), which is not available: {exc}"
         ) from None
-    return list(build_hardware_nodes(params, context))
+    wildcard = params.get("/**", {})  # the clock and the scene, as for every other node
+    own = {name: {**wildcard, **params.get(name, {})} for name in (DRIVER, CAMERA)}
+    return list(build_hardware_nodes(own, context))
 
 
 #: backend name -> builder of the nodes that stand for the arm and the camera
@@ -137,8 +165,10 @@ def build_nodes(
     params: dict[str, dict[str, Any]],
     context=None,
     layers: tuple[str, ...] | list[str] = LAYERS,
+    record: str | Path | None = None,
 ) -> list:
-    """Every node of the chosen layers of the graph for a backend, constructed in `context`.
+    """Every node of the chosen layers of the graph for a backend, constructed in `context`,
+    plus the run recorder when `record` names an MCAP file.
 
     Nodes whose construction fails (an invalid parameter) raise; nodes built before are
     destroyed first so nothing is left half running."""
@@ -161,6 +191,13 @@ def build_nodes(
             nodes += _perception_nodes(params, context)
         if "curiosity" in layers:
             nodes += _curiosity_nodes(params, context)
+        if record is not None:
+            from .recorder_node import RecorderNode
+
+            own = {**params, "run_recorder": {**params.get("run_recorder", {}),
+                                              "path": str(record)}}
+            nodes.append(RecorderNode(context=context,
+                                      parameter_overrides=overrides_for("run_recorder", own)))
     except BaseException:
         for node in nodes:
             node.destroy_node()
@@ -176,57 +213,108 @@ def _layers(text: str) -> list[str]:
     return layers
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="katana-run", description=__doc__.split("\n\n")[0])
+def _positive_seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a number of seconds > 0, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"a number of seconds > 0, got {text!r}")
+    return value
+
+
+def _readable_yaml(text: str) -> Path:
+    path = Path(text)
+    if not path.is_file() or not os.access(path, os.R_OK):
+        raise argparse.ArgumentTypeError(f"a readable parameter YAML file, got {text!r}")
+    return path
+
+
+def _new_mcap(text: str) -> Path:
+    path = Path(text)
+    if path.suffix != ".mcap" or path.is_dir():
+        raise argparse.ArgumentTypeError(f"a file name ending in .mcap, got {text!r}")
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir() or not os.access(folder, os.W_OK):
+        raise argparse.ArgumentTypeError(f"a file in a writable folder, got {text!r}")
+    if path.exists() and not os.access(path, os.W_OK):
+        raise argparse.ArgumentTypeError(f"a writable file, got {text!r}")
+    return path
+
+
+def add_graph_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options katana-run and katana-demo share (each validated while parsing)."""
     parser.add_argument("--backend", choices=BACKENDS, default="sim")
-    parser.add_argument("--params", action="append", default=None, metavar="FILE",
-                        help="ROS parameter YAML (repeatable; default: config/graph.yaml, "
-                        "plus config/sim.yaml for the sim)")
-    parser.add_argument("--layers", type=_layers, default=list(LAYERS), metavar="L[,L]",
-                        help=f"which parts of the graph to start (default: {','.join(LAYERS)})")
-    parser.add_argument("--duration", type=float, default=None, metavar="S",
-                        help="stop after S wall seconds (default: run until Ctrl-C)")
-    args, ros_args = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
-    if args.duration is not None and args.duration <= 0:
-        parser.error("--duration must be positive")
-    files = args.params or default_params_files(args.backend)
+    parser.add_argument("--params", action="append", default=[], metavar="FILE",
+                        type=_readable_yaml,
+                        help="ROS parameter YAML overlaid on the packaged config (repeatable; "
+                        "later files win)")
+    parser.add_argument("--record", type=_new_mcap, default=None, metavar="FILE.mcap",
+                        help="record the run's topics into a rosbag2 MCAP file")
+
+
+def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
+    """(own arguments, ROS arguments): ROS's start at --ros-args, as with `ros2 run`."""
+    if "--ros-args" in argv:
+        i = argv.index("--ros-args")
+        return argv[:i], argv[i:]
+    return argv, []
+
+
+def load_graph_params(parser: argparse.ArgumentParser, backend: str,
+                      overlays: list[Path]) -> tuple[list[Path], dict[str, dict[str, Any]]]:
+    """The packaged YAML overlaid by `overlays`; a bad file ends in parser.error (exit 2)."""
+    files = [*default_params_files(backend), *overlays]
     try:
         params = load_params(files)
     except (OSError, ValueError, yaml.YAMLError) as exc:
-        print(f"katana-run: cannot read parameters: {exc}", file=sys.stderr)
-        return 2
+        parser.error(f"--params: cannot read parameters: {_one_line(exc)}")
+    unknown = unknown_sections(backend, params)
+    if unknown:
+        parser.error(f"--params: no node named {', '.join(unknown)} in the {backend} graph; "
+                     f"valid: /**, {', '.join((*NODE_NAMES[backend], *GRAPH_NODES))}")
+    return files, params
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return " ".join(text.split())
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="katana-run", description=__doc__.split("\n\n")[0])
+    add_graph_arguments(parser)
+    parser.add_argument("--layers", type=_layers, default=list(LAYERS), metavar="L[,L]",
+                        help=f"which parts of the graph to start (default: {','.join(LAYERS)})")
+    parser.add_argument("--duration", type=_positive_seconds, default=None, metavar="S",
+                        help="stop after S wall seconds (default: run until Ctrl-C)")
+    own, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
+    args = parser.parse_args(own)
+    files, params = load_graph_params(parser, args.backend, args.params)
 
     import rclpy
-    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
-    from rclpy.task import Future
+    from rclpy.signals import SignalHandlerOptions
 
-    rclpy.init(args=ros_args)
+    # katana-run handles SIGINT/SIGTERM itself (spin_nodes): the nodes stop before the context
+    rclpy.init(args=["katana-run", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
     try:
-        nodes = build_nodes(args.backend, params, layers=args.layers)
-    except Exception as exc:
-        print(f"katana-run: {exc}", file=sys.stderr)
+        nodes = build_nodes(args.backend, params, layers=args.layers, record=args.record)
+    except (ParameterError, ValueError) as exc:
+        print(f"katana-run: {_one_line(exc)}", file=sys.stderr)
         rclpy.try_shutdown()
-        return 2
-    executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS)
-    for node in nodes:
-        executor.add_node(node)
+        return EXIT_INVALID_CONFIGURATION
+    except SystemExit as exc:
+        print(exc, file=sys.stderr)
+        rclpy.try_shutdown()
+        return EXIT_INVALID_CONFIGURATION
     names = ", ".join(n.get_name() for n in nodes)
     print(f"katana-run: backend {args.backend}: {names} (parameters: "
           f"{', '.join(str(f) for f in files)})", flush=True)
-    try:
-        if args.duration is None:
-            executor.spin()
-        else:  # a future nobody completes: spin for the duration
-            executor.spin_until_future_complete(Future(), timeout_sec=args.duration)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        for node in nodes:
-            executor.remove_node(node)
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    from rclpy.executors import MultiThreadedExecutor
+
+    return spin_nodes(nodes, "katana-run", args.duration,
+                      executor=MultiThreadedExecutor(num_threads=EXECUTOR_THREADS),
+                      limit_s=KATANA_RUN_SHUTDOWN_LIMIT_S)
 
 
 if __name__ == "__main__":

@@ -1,65 +1,76 @@
 """Start the Katana node graph as separate processes (full ROS 2 install: `ros2 launch`).
 
     ros2 launch katana_bringup sim.launch.py [backend:=sim|hardware] [params_file:=FILE]
+        [record:=FILE.mcap]
 
-The whole graph of DESIGN.md: the arm (sim or hardware), the pick-and-place executor,
+The whole graph of docs/DESIGN.md: the arm (sim or hardware), the pick-and-place executor,
 perception, block memory, fovea and the curiosity node.
 
-Same nodes and the same parameter YAML (config/graph.yaml, config/sim.yaml) as the all-in-one
-runner (`ros2 run katana_bringup katana-run`). backend:=hardware starts katana_driver's arm
-driver and camera node (parameters from katana_driver/config/hardware.yaml) instead of the
-simulation.
+Same nodes and the same parameter files, in the same order, as the all-in-one runner
+(`ros2 run katana_bringup katana-run`, katana_bringup.run.default_params_files): graph.yaml
+(the scene under `/**`), the backend's file (backend_sim.yaml: use_sim_time for every node,
+then sim.yaml; or backend_hardware.yaml: wall time), then `params_file` when given (an
+overlay, as katana-run's --params). backend:=hardware starts katana_driver's arm driver and
+camera node (katana_camera), with katana_driver/config/hardware.yaml first.
 """
 
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
-from launch.conditions import IfCondition
-from launch.substitutions import EqualsSubstitution, LaunchConfiguration
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 
+def _nodes(context) -> list:
+    from katana_bringup.run import default_params_files
+
+    backend = LaunchConfiguration("backend").perform(context)
+    overlay = LaunchConfiguration("params_file").perform(context)
+    files = [str(f) for f in default_params_files(backend)] + ([overlay] if overlay else [])
+    hardware = LaunchConfiguration("hardware_params_file").perform(context)
+    nodes = []
+    if backend == "sim":
+        nodes.append(Node(package="katana_sim", executable="sim_node", name="sim_node",
+                          parameters=files, output="screen"))
+    else:
+        nodes += [
+            Node(package="katana_driver", executable="katana_driver_node",
+                 name="katana_driver_node", parameters=[hardware, *files], output="screen"),
+            Node(package="katana_camera", executable="camera_node", name="camera_node",
+                 parameters=[hardware, *files], output="screen"),
+        ]
+    for package, executable in (
+        ("katana_manipulation", "pick_place_executor"),
+        ("katana_perception", "perception_node"),
+        ("katana_perception", "block_memory_node"),
+        ("katana_perception", "fovea_node"),
+        ("katana_curiosity", "curiosity_node"),
+    ):
+        nodes.append(Node(package=package, executable=executable, name=executable,
+                          parameters=files, output="screen"))
+    record = LaunchConfiguration("record").perform(context)
+    if record:  # as katana-run --record FILE.mcap
+        nodes.append(Node(package="katana_bringup", executable="run_recorder",
+                          name="run_recorder", parameters=[*files, {"path": record}],
+                          output="screen"))
+    return nodes
+
+
 def generate_launch_description() -> LaunchDescription:
-    bringup = get_package_share_directory("katana_bringup")
-    backend = LaunchConfiguration("backend")
-    params = LaunchConfiguration("params_file")
-    sim_params = LaunchConfiguration("sim_params_file")
-    hardware_params = LaunchConfiguration("hardware_params_file")
-    is_sim = IfCondition(EqualsSubstitution(backend, "sim"))
-    is_hardware = IfCondition(EqualsSubstitution(backend, "hardware"))
     return LaunchDescription([
         DeclareLaunchArgument("backend", default_value="sim",
                               choices=["sim", "hardware"],
                               description="sim: PyBullet; hardware: a real Katana and camera"),
-        DeclareLaunchArgument("params_file",
-                              default_value=os.path.join(bringup, "config", "graph.yaml"),
-                              description="parameter YAML of the nodes above the arm"),
-        DeclareLaunchArgument("sim_params_file",
-                              default_value=os.path.join(bringup, "config", "sim.yaml"),
-                              description="parameter YAML of sim_node"),
+        DeclareLaunchArgument("params_file", default_value="",
+                              description="parameter YAML overlaid on the packaged config"),
+        DeclareLaunchArgument("record", default_value="",
+                              description="FILE.mcap: record the run's topics (rosbag2 MCAP)"),
         DeclareLaunchArgument("hardware_params_file",
                               default_value=os.path.join(
                                   get_package_share_directory("katana_driver"), "config",
                                   "hardware.yaml"),
                               description="parameter YAML of the driver and camera nodes"),
-        Node(package="katana_sim", executable="sim_node", name="sim_node",
-             parameters=[params, sim_params], output="screen", condition=is_sim),
-        Node(package="katana_driver", executable="katana_driver_node",
-             name="katana_driver_node", parameters=[hardware_params, params], output="screen",
-             condition=is_hardware),
-        Node(package="katana_driver", executable="camera_node", name="camera_node",
-             parameters=[hardware_params, params], output="screen", condition=is_hardware),
-        Node(package="katana_manipulation", executable="pick_place_executor",
-             name="pick_place_executor", parameters=[params], output="screen"),
-        Node(package="katana_perception", executable="perception_node",
-             name="perception_node", parameters=[params], output="screen"),
-        Node(package="katana_perception", executable="block_memory_node",
-             name="block_memory_node", parameters=[params], output="screen"),
-        Node(package="katana_perception", executable="fovea_node",
-             name="fovea_node", parameters=[params], output="screen"),
-        Node(package="katana_curiosity", executable="curiosity_node",
-             name="curiosity_node", parameters=[params], output="screen"),
+        OpaqueFunction(function=_nodes),
     ])
-

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 import rclpy
 from katana_bringup import run
+from katana_common.params import ParameterError
 from rclpy.context import Context
 
 SRC = Path(__file__).resolve().parents[2]
@@ -35,20 +36,60 @@ def test_default_yaml_holds_every_declared_parameter_of_its_nodes(tmp_path):
     params = run.load_params(run.default_params_files("sim"))
     assert {"sim_node", "pick_place_executor", "perception_node", "block_memory_node",
             "fovea_node", "curiosity_node"} <= params.keys()
+    # the scene and the clock once, for every node
+    assert set(params["/**"]) == {"world_frame", "block_size", "camera_position", "camera_rpy",
+                                  "use_sim_time"}
+    assert params["/**"]["use_sim_time"] is True
+    assert run.load_params(run.default_params_files("hardware"))["/**"]["use_sim_time"] is False
     params["curiosity_node"]["run_dir"] = str(tmp_path / "run")
     ctx = Context()
     rclpy.init(context=ctx)
     try:
-        nodes = run.build_nodes("sim", params, ctx)
-        assert len(nodes) == 6
+        nodes = run.build_nodes("sim", params, ctx, record=tmp_path / "run.mcap")
+        assert len(nodes) == 7
         try:
             for node in nodes:
                 builtin = {"use_sim_time", "start_type_description_service"}
                 declared = set(node._parameters) - builtin
-                assert declared == set(params[node.get_name()]), node.get_name()
+                name = node.get_name()
+                assert node.get_parameter("use_sim_time").value is True, name
+                # nothing in the YAML is ignored: every key is a declared parameter
+                assert set(params.get(name, {})) <= declared, name
+                if name in ("perception_node", "block_memory_node", "fovea_node"):
+                    assert declared == set(params[name]) | {
+                        "world_frame", "block_size", "camera_position", "camera_rpy"}, name
         finally:
             for node in nodes:
                 node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def test_shared_yaml_names_no_backend_node():
+    text = (SRC / "katana_bringup" / "config" / "graph.yaml").read_text()
+    assert "sim_node" not in text and "katana_driver_node" not in text
+
+
+def test_params_overlay_the_packaged_yaml_and_unknown_names_stop(tmp_path, capsys):
+    overlay = tmp_path / "overlay.yaml"
+    overlay.write_text("fovea_node:\n  ros__parameters:\n    max_state: 2\n")
+    parser = run.argparse.ArgumentParser(prog="katana-run")
+    files, params = run.load_graph_params(parser, "sim", [overlay])
+    assert files[-1] == overlay and params["fovea_node"]["max_state"] == 2
+    assert params["fovea_node"]["fovea_size_px"] == 40  # the packaged values stay
+    assert params["sim_node"]["num_blocks"] == 4
+    typo = tmp_path / "typo.yaml"
+    typo.write_text("fovea_nod:\n  ros__parameters:\n    max_state: 2\n")
+    with pytest.raises(SystemExit) as stop:
+        run.load_graph_params(parser, "sim", [typo])
+    assert stop.value.code == 2
+    assert "fovea_nod" in capsys.readouterr().err
+    params["fovea_node"]["max_stat"] = 2  # a mistyped key stops the node, naming it
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        with pytest.raises(ParameterError, match="max_stat"):
+            run.build_nodes("sim", params, ctx, layers=["perception"])
     finally:
         rclpy.try_shutdown(context=ctx)
 
@@ -76,9 +117,22 @@ def test_invalid_parameter_stops_construction_with_its_name():
 def test_main_runs_for_a_bounded_duration_and_rejects_bad_files(tmp_path, capsys):
     assert run.main(["--duration", "0.5", "--layers", "arm"]) == 0
     assert "sim_node, pick_place_executor" in capsys.readouterr().out
-    missing = tmp_path / "nope.yaml"
-    assert run.main(["--params", str(missing)]) == 2
-    assert "cannot read parameters" in capsys.readouterr().err
+    bad = [
+        (["--params", str(tmp_path / "nope.yaml")], "--params"),
+        (["--duration", "-1"], "--duration"),
+        (["--duration", "nan"], "--duration"),
+        (["--record", str(tmp_path / "no" / "such" / "dir" / "x.mcap")], "--record"),
+        (["--record", str(tmp_path / "x.bag")], "--record"),
+        (["--layers", "arm,moon"], "--layers"),
+        (["--backend", "moon"], "--backend"),
+        (["--bogus"], "--bogus"),
+    ]
+    for argv, option in bad:
+        with pytest.raises(SystemExit) as stop:
+            run.main(argv)
+        err = capsys.readouterr().err
+        assert stop.value.code == 2, argv
+        assert "usage: katana-run" in err and option in err.splitlines()[-1], (argv, err)
 
 
 def test_launch_file_starts_the_same_nodes_with_a_backend_argument():
@@ -93,15 +147,21 @@ def test_launch_file_starts_the_same_nodes_with_a_backend_argument():
                 if getattr(c.func, "id", "") == "DeclareLaunchArgument"}
     assert declared["backend"]["default_value"] == "sim"
     nodes = {(kwargs(c)["package"], kwargs(c)["executable"]) for c in calls
-             if getattr(c.func, "id", "") == "Node"}
+             if getattr(c.func, "id", "") == "Node" and "package" in kwargs(c)}
+    nodes |= {(t.elts[0].value, t.elts[1].value) for t in ast.walk(tree)
+              if isinstance(t, ast.Tuple) and len(t.elts) == 2
+              and all(isinstance(e, ast.Constant) and isinstance(e.value, str) for e in t.elts)
+              and t.elts[0].value.startswith("katana_")}
     assert {("katana_sim", "sim_node"), ("katana_manipulation", "pick_place_executor"),
-            ("katana_driver", "katana_driver_node"), ("katana_driver", "camera_node"),
+            ("katana_driver", "katana_driver_node"), ("katana_camera", "camera_node"),
             ("katana_perception", "perception_node"), ("katana_perception", "block_memory_node"),
             ("katana_perception", "fovea_node"), ("katana_curiosity", "curiosity_node")} <= nodes
     # every executable the launch file names is a console script of its package
     for pkg, exe in nodes:
         setup = (SRC / pkg / "setup.py").read_text()
         assert f'"{exe} = ' in setup, (pkg, exe)
+    # the same parameter files as katana-run, in the same order
+    assert "default_params_files(backend)" in text
 
 
 def test_executables_are_installed_where_ros2_run_looks():
@@ -114,6 +174,6 @@ def test_executables_are_installed_where_ros2_run_looks():
                      ("katana_perception", "block_memory_node"),
                      ("katana_perception", "fovea_node"), ("katana_curiosity", "curiosity_node"),
                      ("katana_curiosity", "katana-curiosity"),
-                     ("katana_driver", "katana_driver_node"), ("katana_driver", "camera_node")]:
+                     ("katana_driver", "katana_driver_node"), ("katana_camera", "camera_node")]:
         path = Path(prefix) / pkg / "lib" / pkg / exe
         assert path.is_file() and os.access(path, os.X_OK), path

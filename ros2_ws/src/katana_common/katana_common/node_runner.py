@@ -1,21 +1,31 @@
-"""`run_node`: the one main() of every node (start-up errors, signals, shutdown, exit codes).
+"""The one way nodes are run and stopped: `run_node` (one node, every node's main()) and
+`spin_nodes` (any set of nodes on one executor: katana-run, katana-demo).
 
 Exit codes, for every node and console tool of the project:
 0 a clean stop (including SIGINT / SIGTERM), 1 a failure while running,
 2 an invalid configuration (a parameter or argument outside its valid values; as argparse).
 
-Shutdown order: rclpy's signal handler (SIGINT and SIGTERM) shuts the context down and the
-executor's spin returns; the node's `stop()` (if it has one) ends its long waits and threads;
-the executor is shut down; then the node is destroyed, so no callback runs on a destroyed node.
+Shutdown: rclpy's own signal handler would shut the context down under running callbacks
+(publishers invalid, action servers raising), so rclpy is initialised without it and SIGINT /
+SIGTERM only set an event. Then, in this order and while the context is still valid: each
+node's `stop()` (if it has one: it ends the node's long waits and threads), the executor, the
+nodes, the context. Bounded: after SHUTDOWN_LIMIT_S the process says what is still busy and
+exits, so a stuck callback cannot keep a launch waiting for its SIGKILL.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
 
 import rclpy
-from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from .params import ParameterError
 
@@ -23,37 +33,100 @@ EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_INVALID_CONFIGURATION = 2
 
+#: longest wait for the nodes' threads after a stop request, s (a node ends within 2 s)
+SHUTDOWN_LIMIT_S = 1.8
+
 
 def run_node(
     make_node: Callable[[], Node],
     name: str,
     args: list[str] | None = None,
-    executor_factory: Callable[[], Executor] = SingleThreadedExecutor,
+    executor_factory: Callable[[], Executor] = MultiThreadedExecutor,
     shutdown_timeout_s: float = 1.0,
 ) -> int:
-    """Create the node, spin it until shutdown, tear it down; return the exit code."""
-    rclpy.init(args=args)
+    """Create the node, spin it until a signal, stop it; return the exit code."""
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = _stop_on_signals()
     try:
         node = make_node()
     except ParameterError as err:
         rclpy.logging.get_logger(name).fatal(str(err))
         rclpy.try_shutdown()
         return EXIT_INVALID_CONFIGURATION
-    executor = executor_factory()
-    executor.add_node(node)
-    code = EXIT_OK
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as err:  # a bug: say what, stop cleanly, exit non-zero
-        node.get_logger().fatal(f"stopped by an error: {err!r}")
-        code = EXIT_FAILURE
-    finally:
-        stop = getattr(node, "stop", None)
-        if callable(stop):
-            stop()
-        executor.shutdown(timeout_sec=shutdown_timeout_s)
+    return spin_nodes([node], name, executor=executor_factory(), stop=stop,
+                      shutdown_timeout_s=shutdown_timeout_s)
+
+
+def _stop_on_signals() -> threading.Event:
+    """An event that SIGINT and SIGTERM set (instead of raising or shutting rclpy down)."""
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    return stop
+
+
+def spin_nodes(
+    nodes: Sequence[Node],
+    prog: str,
+    duration_s: float | None = None,
+    executor: Executor | None = None,
+    stop: threading.Event | None = None,
+    until: threading.Event | None = None,
+    limit_s: float = SHUTDOWN_LIMIT_S,
+    shutdown_timeout_s: float = 1.0,
+) -> int:
+    """Spin `nodes` until SIGINT/SIGTERM, `until` is set or `duration_s` passes; then stop them
+    (see the module docstring). Needs rclpy initialised with SignalHandlerOptions.NO."""
+    stop = stop or _stop_on_signals()
+    executor = executor or MultiThreadedExecutor(num_threads=8)
+    for node in nodes:
+        executor.add_node(node)
+    failures: list[BaseException] = []
+
+    def spin() -> None:
+        try:
+            executor.spin()
+        except ExternalShutdownException:
+            pass
+        except Exception as exc:  # a bug in a callback: stop everything, exit 1
+            failures.append(exc)
+        finally:
+            stop.set()
+
+    spinner = threading.Thread(target=spin, name=f"{prog} executor", daemon=True)
+    spinner.start()
+    deadline = None if duration_s is None else time.monotonic() + duration_s
+    while not stop.is_set() and not (until is not None and until.is_set()):
+        left = 0.1 if deadline is None else min(0.1, deadline - time.monotonic())
+        if left <= 0:
+            break
+        stop.wait(left)  # short waits: the main thread runs the signal handler between them
+    watchdog = threading.Timer(limit_s, _give_up, args=(prog, limit_s))
+    watchdog.daemon = True
+    watchdog.start()
+    for node in nodes:
+        node_stop = getattr(node, "stop", None)
+        if callable(node_stop):
+            try:
+                node_stop()
+            except Exception as exc:  # keep stopping the others
+                print(f"{prog}: {node.get_name()}.stop(): {exc!r}", file=sys.stderr)
+    executor.shutdown(timeout_sec=shutdown_timeout_s)
+    spinner.join(timeout=shutdown_timeout_s)
+    for node in nodes:
         node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    rclpy.try_shutdown()
+    watchdog.cancel()
+    if failures:
+        print(f"{prog}: stopped by an error: {failures[0]!r}", file=sys.stderr)
+        return EXIT_FAILURE
+    return EXIT_OK
+
+
+def _give_up(prog: str, limit_s: float) -> None:
+    busy = [t.name for t in threading.enumerate()
+            if t is not threading.current_thread() and not t.daemon and t.is_alive()]
+    print(f"{prog}: shutdown took over {limit_s} s (still busy: "
+          f"{', '.join(busy) or 'callbacks'}); exiting", file=sys.stderr, flush=True)
+    sys.stdout.flush()
+    os._exit(EXIT_FAILURE)

@@ -10,7 +10,7 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 
-#: latest state for late joiners (world/blocks, learner_state, ground truth, markers)
+#: latest state for late joiners (memory/blocks, learner_state, ground truth, markers)
 STATE_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=1,

@@ -192,7 +192,11 @@ NODE_SCRIPT = textwrap.dedent(
         def __init__(self):
             super().__init__("runner_demo")
             self.params = declare_parameters(self, [Param("rate", 1.0, "Hz", low=0.1, high=9)])
-            self.stopped = False
+            # "ready" once spinning, so the test's signal meets a running node
+            self.timer = self.create_timer(0.01, self.ready)
+
+        def ready(self):
+            self.timer.cancel()
             print("ready", flush=True)
 
         def stop(self):

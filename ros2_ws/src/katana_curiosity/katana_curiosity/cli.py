@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -21,6 +22,38 @@ def _positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
     return value
+
+
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+def _discount(text: str) -> float:
+    value = float(text)
+    if not 0.0 <= value < 1.0:
+        raise argparse.ArgumentTypeError(f"must be in [0, 1), got {value}")
+    return value
+
+
+def _writable_folder(text: str) -> Path:
+    """--out: created if missing and probed with a temporary file, before any work, so a run
+    never ends on an unwritable folder (a permission check alone does not see read-only or
+    virtual file systems, nor root's rights)."""
+    path = Path(text)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as err:
+        raise argparse.ArgumentTypeError(
+            f"cannot write in {path}: {err.strerror or err}") from None
+    return path
 
 
 def _methods(text: str) -> list[str]:
@@ -53,7 +86,7 @@ def _add_common(p: argparse.ArgumentParser, steps: int, seeds: int, methods: str
     p.add_argument(
         "--seeds", type=_positive_int, default=seeds, help="runs per method (seeds 0..K-1)"
     )
-    p.add_argument("--first-seed", type=int, default=0, help="first seed")
+    p.add_argument("--first-seed", type=_non_negative_int, default=0, help="first seed, >= 0")
     p.add_argument("--jobs", type=_positive_int, default=1, help="worker processes")
     p.add_argument(
         "--methods",
@@ -63,8 +96,8 @@ def _add_common(p: argparse.ArgumentParser, steps: int, seeds: int, methods: str
     )
     p.add_argument("--alpha", type=_positive_float, default=1.0, help="query condition scale")
     p.add_argument("--theta", type=_unit_interval, default=0.01, help="query threshold, [0, 1]")
-    p.add_argument("--gamma", type=float, default=0.95, help="discount factor, [0, 1)")
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--gamma", type=_discount, default=0.95, help="discount factor, [0, 1)")
+    p.add_argument("--out", type=_writable_folder, required=True, help="output folder")
     p.add_argument("--no-figures", action="store_true", help="write summary and CSV only")
 
 
@@ -79,14 +112,101 @@ def build_parser() -> argparse.ArgumentParser:
     _add_common(paper, 10_000, 10, ",".join(DEFAULT_METHODS))
     explore = sub.add_parser("explore", help="one Q1 run with a progress bar, and its figures")
     _add_common(explore, 10_000, 1, "q1")
+    _add_sweep(sub)
     return parser
+
+
+def _grid_axis(text: str) -> tuple[str, tuple]:
+    from .core.sweep import parse_grid_axis
+
+    try:
+        return parse_grid_axis(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _add_sweep(sub) -> None:
+    from .core.sweep import DEFAULT_GRID, DEFAULT_SWEEP_METHODS
+
+    default_grid = " ".join(
+        f"--grid {k}={','.join(f'{v:g}' for v in vs)}" for k, vs in DEFAULT_GRID.items()
+    )
+    p = sub.add_parser(
+        "sweep",
+        help="a parameter grid x seeds x methods as Ray tasks; sweep.csv, summary.json, "
+        "sensitivity.png (resumes)",
+    )
+    p.add_argument(
+        "--grid",
+        type=_grid_axis,
+        action="append",
+        help=f"NAME=V1,V2,... (repeat per axis; alpha, theta, gamma, n_blocks, n_features); "
+        f"default {default_grid}",
+    )
+    p.add_argument("--steps", type=_positive_int, default=10_000, help="experiments per run")
+    p.add_argument("--seeds", type=_positive_int, default=20, help="runs per cell and method")
+    p.add_argument("--first-seed", type=_non_negative_int, default=0, help="first seed, >= 0")
+    p.add_argument(
+        "--methods",
+        type=_methods,
+        default=list(DEFAULT_SWEEP_METHODS),
+        help=f"comma-separated, from {','.join(STRATEGIES)}",
+    )
+    p.add_argument("--alpha", type=_positive_float, default=1.0, help="alpha where not swept")
+    p.add_argument("--theta", type=_unit_interval, default=0.01, help="theta where not swept")
+    p.add_argument("--gamma", type=_discount, default=0.95, help="gamma where not swept, [0, 1)")
+    p.add_argument("--out", type=_writable_folder, required=True,
+                   help="output folder (resumed if it exists)")
+    p.add_argument(
+        "--address",
+        default=None,
+        help="an existing Ray cluster (e.g. ray://head:10001 or auto); default: a local Ray",
+    )
+    p.add_argument(
+        "--num-cpus", type=_positive_int, default=2, help="CPUs of the local Ray (no --address)"
+    )
+    p.add_argument("--no-figures", action="store_true", help="write sweep.csv and summary only")
+
+
+def _sweep(args, parser: argparse.ArgumentParser) -> int:
+    from .core.sweep import DEFAULT_GRID, SweepSpec, run_sweep
+
+    grid = dict(args.grid) if args.grid else dict(DEFAULT_GRID)
+    if args.grid and len(grid) != len(args.grid):
+        parser.error("argument --grid: each parameter may be given once")
+    base = {k: getattr(args, k) for k in ("alpha", "theta", "gamma") if k not in grid}
+    try:
+        spec = SweepSpec(
+            grid=grid,
+            methods=tuple(args.methods),
+            seeds=args.seeds,
+            first_seed=args.first_seed,
+            steps=args.steps,
+            base=base,
+        )
+    except ValueError as exc:
+        parser.error(f"argument --grid: {exc}")
+    start = time.perf_counter()
+    summary = run_sweep(
+        spec, args.out, address=args.address, num_cpus=args.num_cpus, figures=not args.no_figures
+    )
+    wall = time.perf_counter() - start
+    for name, per_method in summary["by_parameter"].items():
+        for method, values in per_method.items():
+            text = "  ".join(f"{v}: {s['mean']:.4f}+-{s['std']:.4f}" for v, s in values.items())
+            print(f"{method:>8} final KL by {name}: {text}")
+    print(
+        f"{summary['ran']} runs now, {summary['reused']} from {args.out}/sweep.csv, "
+        f"in {wall:.1f} s; results in {args.out}/"
+    )
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if not 0.0 <= args.gamma < 1.0:
-        parser.error(f"argument --gamma: must be in [0, 1), got {args.gamma}")
+    if args.command == "sweep":
+        return _sweep(args, parser)
     configs = [
         RunConfig(
             method=m, seed=s, steps=args.steps, alpha=args.alpha, theta=args.theta, gamma=args.gamma
@@ -104,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_figures:
         from .core.plots import paper_figures  # matplotlib only when figures are wanted
 
-        paper_figures(results, args.out)
+        paper_figures(results, args.out, jobs=args.jobs)
     wall = time.perf_counter() - start
     for method, m in summary["methods"].items():
         kl = " ".join(f"{h}:{v:.3f}" for h, v in m["final_kl"].items())

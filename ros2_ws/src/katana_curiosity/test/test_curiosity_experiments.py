@@ -134,39 +134,23 @@ def test_invalid_cli_arguments_give_a_clear_error(tmp_path, args, message) -> No
     assert not (tmp_path / "summary.json").exists()
 
 
-def test_robot_report_summarises_a_log(tmp_path) -> None:
-    from katana_curiosity.core.robot_report import write_report
-    from katana_curiosity.core.run_record import ExperienceLog
-
-    log = ExperienceLog(tmp_path / "experience.jsonl")
-    script = [
-        (0, 1, 1, "query"),
-        (1, 6, 1, "query"),
-        (2, 6, -1, "query"),
-        (1, 1, -1, "plan"),
-        (2, 5, 1, "query"),
-    ]
-    for i, (state, action, label, mode) in enumerate(script):
-        log.append(
-            {
-                "index": i,
-                "state": state,
-                "action": action,
-                "action_index": action - 1,
-                "label": label,
-                "mode": mode,
-                "wall_time": 100.0 + 2.0 * i,
-                "stage_s": {"pick_place_s": 0.5 + i},
-            }
-        )
-    summary = write_report(tmp_path)
-    assert summary["experiments"] == 5 and summary["queries"] == 4 and summary["plans"] == 1
-    assert summary["highest_stack"] == 3  # the stable placement on height 2
-    assert summary["labels"]["2"] == {"6": {"stable": 0, "fell": 1}, "5": {"stable": 1, "fell": 0}}
-    assert summary["s_per_experiment"] == 2.0
-    assert summary["stage_median_s"]["pick_place_s"] == 2.5
-    assert summary["heights_explored"] == [0, 1, 2]
-    for name in ("model.png", "experience.png"):
-        assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
-        assert (tmp_path / name).stat().st_size > 10_000
-    assert json.loads((tmp_path / "summary.json").read_text()) == summary
+@pytest.mark.parametrize("command", ["paper", "explore", "sweep"])
+@pytest.mark.parametrize(
+    "args, option",
+    [
+        (["--first-seed", "-1"], "--first-seed"),
+        (["--out", "/proc/no/such/folder"], "--out"),
+        (["--gamma", "1.5"], "--gamma"),
+    ],
+)
+def test_every_option_is_checked_before_any_work(tmp_path, capsys, command, args, option):
+    """One line naming the option, the subcommand's usage, exit 2, nothing written."""
+    out = ["--out", str(tmp_path / "run")] if "--out" not in args else []
+    grid = ["--grid", "alpha=1"] if command == "sweep" else []
+    with pytest.raises(SystemExit) as exit_info:
+        main([command, *grid, *out, *args])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert f"katana-curiosity {command}: error: argument {option}" in err
+    assert f"usage: katana-curiosity {command}" in err
+    assert not (tmp_path / "run" / "summary.json").exists()

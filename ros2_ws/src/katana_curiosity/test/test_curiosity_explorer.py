@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 from katana_curiosity.core.abstract_world import AbstractBlocksWorld
+from katana_curiosity.core.environment import Setting
 from katana_curiosity.core.experiments import RunConfig, run
 from katana_curiosity.core.explorer import PLAN, QUERY, RANDOM, Explorer, make_strategy
 from katana_curiosity.core.predictors import PredictorBank, QueryRule
-from katana_curiosity.core.world import Setting
 
 
 class TracingWorld:
@@ -123,7 +123,7 @@ def test_invalid_run_arguments_give_a_clear_error(kwargs, match) -> None:
 def test_unknown_strategy_name_lists_the_known_ones() -> None:
     world = AbstractBlocksWorld()
     bank = PredictorBank(world.learned_heights, world.features, n_states=world.top + 1)
-    with pytest.raises(ValueError, match="conf, q1, q10, random"):
+    with pytest.raises(ValueError, match="conf, egreedy, lp, q1, q10, random, rmax, variance"):
         make_strategy("greedy", bank, world.top)
 
 

@@ -198,3 +198,41 @@ def test_infeasible_unknowns_on_the_table_do_not_attract_the_plan() -> None:
     planner = Planner(bank, top=4, feasible=feasible)
     planner.solve()
     assert planner.choose(np.array([0, 1])) == (1, 5), "build towards height 2 instead"
+
+
+def test_ties_within_the_tolerance_go_to_the_first_action_and_the_highest_height() -> None:
+    bank = PredictorBank(range(1, 5), one_hot_with_bias(3), n_states=6)
+    planner = Planner(bank, top=5)
+    q = np.zeros((6, 3))
+    q[2] = [0.5, 0.5 + 1e-15, 0.2]  # one rounding error apart: a tie, the first action wins
+    q[3] = [0.5 - 1e-15, 0.1, 0.0]  # and height 3 ties with height 2: the higher one
+    assert planner.choose(np.array([0, 2, 3]), q) == (3, 0)
+    q[2, 1] = 0.5 + 1e-9  # a real difference decides
+    assert planner.choose(np.array([0, 2, 3]), q) == (2, 1)
+
+
+def test_variance_and_custom_phantom_rewards() -> None:
+    rng = np.random.default_rng(5)
+    bank = PredictorBank(range(1, 8), one_hot_with_bias(21), QueryRule(1.0, 0.01), n_states=9)
+    for _ in range(200):
+        bank.update(int(rng.integers(1, 8)), int(rng.integers(21)), float(rng.choice([-1, 1])))
+    mdp = build_mdp(bank, 8, reward="variance")
+    np.testing.assert_allclose(mdp.rewards[1:8], 1.0 - np.clip(bank.margin[1:8], -1, 1) ** 2)
+    assert np.all(mdp.rewards[[0, 8]] == 0)
+    table = rng.random((9, 21))
+    calls = []
+
+    def reward(rows):
+        calls.append(rows.copy())
+        return table[rows]
+
+    planner = Planner(bank, top=8, reward=reward)
+    q = planner.solve()
+    expected = table.copy()
+    expected[8] = 0.0  # the absorbing state earns nothing
+    np.testing.assert_allclose(planner._mdp.rewards, expected)
+    fresh = HeightMDP(build_mdp(bank, 8).transitions, expected, 0.95)
+    np.testing.assert_allclose(q.max(axis=1), value_iteration(fresh).max(axis=1), atol=1e-7)
+    table[3, 4] = 50.0  # a strategy's reward changes without any model update: re-read
+    planner.solve()
+    assert planner._mdp.rewards[3, 4] == 50.0 and len(calls) == 2

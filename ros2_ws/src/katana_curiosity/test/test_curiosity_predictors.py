@@ -164,3 +164,17 @@ def test_state_dict_round_trip_restores_the_bank() -> None:
     for name in ("w", "a_inv", "examples", "margin", "chi", "unknown"):
         np.testing.assert_allclose(getattr(copy, name), getattr(bank, name), atol=1e-12)
     assert copy.rule == bank.rule
+
+
+def test_listeners_hear_each_learned_example_with_the_margin_before_learning() -> None:
+    bank = PredictorBank(range(1, 4), one_hot_with_bias(5), n_states=5)
+    heard = []
+    bank.listeners.append(lambda *event: heard.append(event))
+    rng = np.random.default_rng(2)
+    expected = []
+    for _ in range(50):
+        s, a, y = int(rng.integers(0, 4)), int(rng.integers(5)), float(rng.choice([-1, 1]))
+        if s != 0:  # the table has no predictor: nothing is learned, nobody is told
+            expected.append((s, a, y, float(bank.margin[s, a])))
+        bank.update(s, a, y)
+    assert heard == expected  # the margin too: both are w[a] + w[bias], bit for bit

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 from katana_curiosity.core.abstract_world import AbstractBlocksWorld
-from katana_curiosity.core.world import PlacementUnavailable
+from katana_curiosity.core.environment import PlacementUnavailable
 from scipy import stats
 
 

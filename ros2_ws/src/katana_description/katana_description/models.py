@@ -1,4 +1,4 @@
-"""Katana arm facts (KATANA.md) shared by the URDF generator, the kinematics and the sim.
+"""Katana arm facts (docs/KATANA.md) shared by the URDF generator, the kinematics and the sim.
 
 ROS-free. One place for link lengths, limits, speeds and masses, so the URDF and the closed-form
 kinematics cannot drift apart; the kinematics tests still check the two against PyBullet's own
@@ -58,7 +58,7 @@ LINK3 = 0.139  # motor 3 -> motor 4
 WRIST_TO_GRIPPER = 0.0323  # motor 5 joint -> gripper link (ROS 1 URDF)
 
 # Gripper: each finger is a lever of length FINGER_LEVER from a pivot on the gripper's centre line,
-# at angle FINGER_ANGLE0 + q from the approach axis. This reproduces KATANA.md's jaw openings:
+# at angle FINGER_ANGLE0 + q from the approach axis. This reproduces docs/KATANA.md's jaw openings:
 # touching at -0.44 rad, about 6.3 cm at 0 and 9.7 cm at 0.30.
 FINGER_ANGLE0 = 0.44
 FINGER_LEVER = 0.0737
@@ -68,7 +68,7 @@ FINGER_PAD_LENGTH = 0.026  # along the approach axis
 FINGER_PAD_THICKNESS = 0.008
 FINGER_PAD_WIDTH = 0.022
 
-# Masses (kg), KATANA.md.
+# Masses (kg), docs/KATANA.md.
 MASSES: dict[str, float] = {
     "base": 1.405,
     "link1": 0.748,

@@ -5,7 +5,7 @@ here, so the files are generated from `models.py` and committed; rerun after cha
 
 The arm keeps the joint names, origins and axes of the ROS 1 katana_description (so joint angles
 mean the same as on the real arm and in the driver) with simple collision shapes (boxes and
-cylinders), KATANA.md's masses and the inertias of those shapes. The two fingers are levers
+cylinders), docs/KATANA.md's masses and the inertias of those shapes. The two fingers are levers
 whose tips carry flat, high-friction pads, so the gripper holds a block by contact and friction.
 """
 

@@ -1,4 +1,4 @@
-"""The generated URDFs: up to date with models.py, loadable, and faithful to KATANA.md."""
+"""The generated URDFs: up to date with models.py, loadable, and faithful to docs/KATANA.md."""
 
 from __future__ import annotations
 

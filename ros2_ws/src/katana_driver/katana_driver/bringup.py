@@ -1,4 +1,4 @@
-"""Hardware backend for the all-in-one runner: the driver and camera nodes, configured.
+"""Hardware backend for the all-in-one runner: the driver and (katana_camera's) camera nodes.
 
 ``build_hardware_nodes(params, context)`` returns the nodes that replace sim_node when
 ``backend:=hardware``. Spin them on a MultiThreadedExecutor with at least three threads for
@@ -61,7 +61,8 @@ def build_hardware_nodes(
     """katana_driver_node and camera_node with hardware.yaml's parameters overlaid by
     ``params`` (keys ``katana_driver_node`` and ``camera_node``, flat or ``ros__parameters``).
     A bad value raises an exception naming the parameter."""
-    from katana_driver.camera_node import CameraNode
+    from katana_camera.camera_node import CameraNode
+
     from katana_driver.katana_driver_node import KatanaDriverNode
 
     merged = load_hardware_params(params)

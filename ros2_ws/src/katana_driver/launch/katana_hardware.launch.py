@@ -44,7 +44,7 @@ def generate_launch_description() -> LaunchDescription:
         ],
     )
     camera = Node(
-        package="katana_driver",
+        package="katana_camera",
         executable="camera_node",
         name="camera_node",
         namespace=ns,

@@ -4,8 +4,8 @@ import time
 
 import pytest
 import rclpy
+from katana_common.params import ParameterError
 from katana_driver.bringup import build_hardware_nodes, load_hardware_params
-from katana_driver.params import ParameterError
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node

@@ -7,7 +7,8 @@ from katana_driver.core import protocol as p
 from katana_driver.core.client import KatanaClient
 from katana_driver.core.splines import hermite_segment, hold_segment
 from katana_driver.core.transport import SerialTransport, TcpTransport, TransportError
-from katana_driver.emulator import BANNER, ENCODER_OFFSETS, _FrameParser, main
+from katana_driver.emulator import BANNER, _FrameParser, main
+from katana_driver.emulator_model import ENCODER_OFFSETS
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -214,3 +215,27 @@ def test_console_script_refuses_a_busy_port(make_emulator, capsys):
     assert main(["--port", str(emulator.address[1])]) == 1
     out = capsys.readouterr()
     assert BANNER in out.out and "cannot listen" in out.err
+
+
+def test_a_segment_sent_twice_is_counted_and_shows_as_a_jump(make_emulator):
+    """The fault counters can fail: a re-sent segment is a duplicate, and playing it again
+    from its start position jumps the joint back, far above its speed limit."""
+    emulator, client = calibrated_client(make_emulator)
+    now = client.read_positions()
+    speed = emulator.model.motors[0].nominal_speed  # encoders per tick
+    ticks = 40
+    segs = [hold_segment(e, ticks) for e in now]
+    segs[0] = hermite_segment(now[0], now[0] - int(0.6 * speed * ticks), 0.0, 0.0, ticks)
+    emulator.model.reset_counters()
+    client.send_spline_all(segs, p.ACTIVITY_START)
+    wait_for(lambda: client.read_status()[0] == p.STATUS_SPLINE_DONE)
+    assert emulator.model.duplicated_segments == 0
+    assert 0.8 < emulator.model.max_speed_ratio <= 1.0  # 0.6 x mean, x 1.5 at the peak
+    client.send_spline_all(segs, p.ACTIVITY_START)  # the same segment again
+    wait_for(lambda: client.read_status()[0] == p.STATUS_SPLINE_DONE)
+    assert emulator.model.duplicated_segments == 1
+    assert emulator.model.max_speed_ratio > 5.0
+    client.flush_buffers()  # after a flush, the same row is a new command, not a duplicate
+    client.send_spline_all([hold_segment(e, 20) for e in client.read_positions()],
+                           p.ACTIVITY_LAST)
+    assert emulator.model.duplicated_segments == 1

@@ -1,13 +1,16 @@
-"""Encoder conversion: the URDF's limits, KATANA.md's examples, round trips."""
+"""Encoder conversion: the URDF's limits, docs/KATANA.md's examples, round trips."""
 
 import math
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
-from katana_driver.core.encoders import VARIANTS, EncoderModel
+from katana_description import arm_contract as ac
+from katana_description import models
+from katana_driver.core.arm import CALIBRATION_BACKOFF_RAD
+from katana_driver.core.encoders import ARM_JOINTS, VARIANTS, EncoderModel, variant_of
 
-# Joint limits of the URDF (shared/KATANA.md table), motors 1..5.
+# Joint limits of the URDF (docs/KATANA.md table), motors 1..5.
 URDF_LIMITS = [
     (-3.025528, 2.891097),
     (-0.135228, 2.168572),
@@ -47,6 +50,7 @@ def test_6m90b_wrist_is_turned_half_a_turn():
         assert diff == pytest.approx(math.pi, abs=1e-9)
 
 
+@settings(deadline=None)  # no timed asserts: a loaded machine is not a bug
 @given(st.sampled_from(VARIANTS), st.integers(1, 5), st.data())
 def test_encoder_angle_round_trip(variant, motor, data):
     m = EncoderModel(variant)
@@ -57,6 +61,7 @@ def test_encoder_angle_round_trip(variant, motor, data):
     assert m.angle_to_encoder(motor, angle) == pytest.approx(enc, abs=1e-6)
 
 
+@settings(deadline=None)  # no timed asserts: a loaded machine is not a bug
 @given(st.floats(-0.44, 0.30))
 def test_gripper_round_trip(angle):
     m = EncoderModel()
@@ -71,3 +76,31 @@ def test_seven_joint_positions_with_equal_fingers():
 def test_unknown_variant_is_refused():
     with pytest.raises(ValueError, match="6M180"):
         EncoderModel("6M45")
+
+
+@pytest.mark.parametrize("model_name", sorted(models.MODELS))
+def test_the_calibrated_pose_is_a_valid_start_for_every_modelled_arm(model_name):
+    """The cause of "pan would be -3.026 rad, outside [-3.026, 2.891]" after calibration: the
+    stop converts to -3.0255282636 rad, 2.6e-7 below katana_description's rounded limit
+    -3.025528. Backed off by CALIBRATION_BACKOFF_RAD, the pose is inside every limit of the
+    model and the arm contract accepts a goal from it (to the park pose)."""
+    _, variant = variant_of(model_name)
+    enc = EncoderModel(variant)
+    stops = enc.calibration_pose(0.0)
+    limits = models.get_model(model_name).limits
+    assert stops[0] < limits[models.ARM_JOINTS[0]][0]  # the stop itself: a hair outside
+    pose = enc.calibration_pose(CALIBRATION_BACKOFF_RAD)
+    for name, q in zip(models.ARM_JOINTS, pose, strict=True):
+        lo, hi = limits[name]
+        assert lo + 0.009 < q < hi - 0.009, name
+    current = dict(zip(models.ARM_JOINTS, pose, strict=True))
+    goal = ac.TrajectoryGoal(list(models.ARM_JOINTS), [4.0], [list(models.PARK_POSE)])
+    assert ac.validate_trajectory(goal, current, ac.ArmContract(model=model_name)) == ac.OK
+
+
+def test_driver_speeds_and_names_are_katana_descriptions():
+    assert ARM_JOINTS == models.ARM_JOINTS
+    for motor, name in enumerate(models.ARM_JOINTS, start=1):
+        per_tick = EncoderModel().speed_limit_enc(motor)
+        rad_s = per_tick / abs(EncoderModel().speed_to_encoder(motor, 1.0))
+        assert rad_s == pytest.approx(models.JOINT_MAX_SPEED[name], rel=1e-12)

@@ -1,15 +1,19 @@
 """katana_driver_node in-process against the emulator: the sim_node interfaces, refusals, faults."""
 
 import itertools
+import math
 import time
 
 import pytest
 import rclpy
 from builtin_interfaces.msg import Duration
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from katana_common.conversions import duration_msg
+from katana_common.params import ParameterError
 from katana_driver.core import protocol as p
 from katana_driver.core.encoders import ALL_JOINTS, ARM_JOINTS
 from katana_driver.katana_driver_node import KatanaDriverNode
-from katana_driver.params import ParameterError
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.msg import JointTolerance
 from katana_interfaces.srv import ResetWorld, SetMotors
@@ -133,7 +137,8 @@ def test_joint_states_carry_seven_joints(graph):
     msg = g.states[-1]
     assert list(msg.name) == list(ALL_JOINTS)
     assert msg.position[5] == msg.position[6]
-    assert msg.position[0] == pytest.approx(-3.025528, abs=1e-5)  # M1 at its calibration stop
+    # M1 backed off its calibration stop into the limits
+    assert msg.position[0] == pytest.approx(-3.025528 + 0.01, abs=1e-4)
 
 
 def test_follows_a_trajectory_in_any_joint_order(graph):
@@ -159,7 +164,7 @@ def test_follows_a_trajectory_in_any_joint_order(graph):
     [
         ([(1.0, [-2.5, 3.0, -1.8, -1.5, -2.5])], ARM_JOINTS, -1, "outside its limits"),
         ([(0.3, [0.0, 1.8, -1.8, -1.5, -2.5])], ARM_JOINTS, -1, "rad/s"),
-        ([(1.0, [0.0] * 5)], ("a", "b", "c", "d", "e"), -2, "five arm joints"),
+        ([(1.0, [0.0] * 5)], ("a", "b", "c", "d", "e"), -2, "unknown or non-arm joints"),
         ([], ARM_JOINTS, -1, "no points"),
     ],
 )
@@ -200,10 +205,6 @@ def test_gripper_opens_closes_and_stalls_on_a_block(graph):
     assert res.status == GoalStatus.STATUS_ABORTED
 
 
-# Seen once in a full-suite CI run (never alone, also not under a CPU burner): the worker
-# produced no joint state for several seconds after the injected collision, so the goal ended
-# "no joint state from the arm in time". Unexplained; rerun at most twice, assertions unchanged.
-@pytest.mark.flaky(reruns=2)
 def test_collision_aborts_with_the_controllers_message(graph):
     g = graph()
     g.ready()
@@ -216,7 +217,12 @@ def test_collision_aborts_with_the_controllers_message(graph):
     assert g.spin_until(result.done)
     res = result.result()
     assert res.status == GoalStatus.STATUS_ABORTED
-    assert "Collision on axis 2" in res.result.error_string
+    assert res.result.error_code == FollowJointTrajectory.Result.PATH_TOLERANCE_VIOLATED
+    # The controller's text: "Collision on axis 2", or, when a segment went out between the
+    # collision and the next poll, its refusal "Axis stopped by a collision" (which then is
+    # the controller's last error). Either way the driver says it was a collision and goes on.
+    assert res.result.error_string.startswith("collision: motors")
+    assert "ollision" in res.result.error_string.split("controller: ")[1]
     # The next goal unblocks the motors and runs.
     res = g.run_goal(g.arm, trajectory_goal([(2.0, [-2.5, 1.8, -1.8, -1.5, -2.5])]))
     assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.error_string
@@ -272,14 +278,15 @@ def test_goals_are_refused_clearly_without_a_controller(graph, make_emulator):
 
 def test_serial_transport_through_a_pseudo_terminal(graph, make_emulator):
     emulator = make_emulator(serial=True)
-    g = graph(emulator, transport="serial", serial_device=emulator.serial_device, katana_type=300)
+    g = graph(emulator, transport="serial", serial_device=emulator.serial_device, model="300_6m180")
     g.ready()
-    assert g.states[-1].position[1] == pytest.approx(2.168572, abs=1e-5)
+    assert g.states[-1].position[1] == pytest.approx(2.168572 - 0.01, abs=1e-4)
 
 
 @pytest.mark.parametrize(
     ("name", "value"),
-    [("katana_type", 350), ("variant", "6M45"), ("poll_rate", 100.0), ("transport", "usb")],
+    [("model", "350_6m180"), ("model", "450_6m90a"), ("poll_rate", 100.0), ("transport", "usb"),
+     ("transport", "serial"), ("katana_type", 450), ("max_trajectory_s", math.inf)],
 )
 def test_bad_parameters_stop_the_node_naming_them(make_emulator, name, value):
     ctx = Context()
@@ -293,3 +300,139 @@ def test_bad_parameters_stop_the_node_naming_them(make_emulator, name, value):
             )
     finally:
         rclpy.shutdown(context=ctx)
+
+
+def test_a_trajectory_longer_than_max_trajectory_s_is_refused_at_once(graph):
+    """A time_from_start of 1e5 s once locked the driver for over a minute."""
+    g = graph(max_trajectory_s=30.0)
+    g.ready()
+    res = g.run_goal(g.arm, trajectory_goal([(1e5, [-2.5, 1.8, -1.8, -1.5, -2.5])]))
+    assert res.status == GoalStatus.STATUS_ABORTED
+    assert res.result.error_code == FollowJointTrajectory.Result.INVALID_GOAL
+    assert "max_trajectory_s" in res.result.error_string
+    assert g.driver.worker.state.status[:5] == [p.STATUS_HOLDING] * 5
+
+
+@pytest.mark.parametrize("field", ["position", "velocity", "acceleration"])
+@pytest.mark.parametrize("value", [math.nan, math.inf])
+def test_non_finite_tolerances_are_refused(graph, field, value):
+    g = graph()
+    g.ready()
+    goal = trajectory_goal([(1.0, [-2.7, 2.0, -2.0, -1.8, -2.7])])
+    tol = JointTolerance(name=ARM_JOINTS[1])
+    setattr(tol, field, value)
+    goal.path_tolerance = [tol]
+    res = g.run_goal(g.arm, goal)
+    assert res.status == GoalStatus.STATUS_ABORTED
+    assert res.result.error_code == FollowJointTrajectory.Result.INVALID_GOAL
+    assert "not finite" in res.result.error_string
+
+
+def test_gripper_goals_are_refused_while_the_arm_moves(graph):
+    g = graph()
+    g.ready()
+    sent = g.arm.send_goal_async(trajectory_goal([(2.0, [-1.5, 1.2, -1.0, -0.5, -1.5])]))
+    assert g.spin_until(sent.done)
+    arm_result = sent.result().get_result_async()
+    assert g.spin_until(lambda: g.driver.worker.state.status[0] == p.STATUS_MOVING)
+    before = g.driver.worker.state.positions[5]
+    res = g.run_goal(g.gripper, gripper_goal(-0.3))
+    assert res.status == GoalStatus.STATUS_ABORTED
+    assert not res.result.reached_goal
+    assert g.spin_until(arm_result.done)
+    assert arm_result.result().status == GoalStatus.STATUS_SUCCEEDED
+    assert g.driver.worker.state.positions[5] == pytest.approx(before, abs=1e-3)
+
+
+def _set(g, name, value):
+    from rcl_interfaces.srv import SetParameters
+
+    client = g.client.create_client(SetParameters, f"{g.driver.get_name()}/set_parameters")
+    request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
+    return g.call(client, request).results[0]
+
+
+def test_live_and_read_only_parameters(graph):
+    g = graph()
+    g.ready()
+    assert _set(g, "max_trajectory_s", 5.0).successful
+    res = g.run_goal(g.arm, trajectory_goal([(6.0, [-2.5, 1.8, -1.8, -1.5, -2.5])]))
+    assert "max_trajectory_s 5" in res.result.error_string
+    bad = _set(g, "max_trajectory_s", -1.0)
+    assert not bad.successful and "max_trajectory_s" in bad.reason
+    assert g.driver.params["max_trajectory_s"] == 5.0 and g.driver.contract.max_trajectory_s == 5.0
+    ro = _set(g, "host", "10.0.0.1")
+    assert not ro.successful and "read-only" in ro.reason
+    assert _set(g, "poll_rate", 10.0).successful
+    assert g.driver.worker.period == pytest.approx(0.1)
+
+
+_anything = st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=64),
+                      st.integers(-3, 3).map(float))
+
+
+def test_arbitrary_goals_are_answered_and_the_node_keeps_serving(graph):
+    """Property: any FollowJointTrajectory or GripperCommand goal gets a result (a refusal
+    carries the contract's reason) and the node stays up for the next one."""
+    g = graph(max_trajectory_s=1.5)
+    g.ready()
+    codes = {0, -1, -2, -4, -5}
+
+    @settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(
+        names=st.lists(st.sampled_from([*ALL_JOINTS, "bogus", ""]), max_size=6),
+        points=st.lists(st.tuples(_anything, st.lists(_anything, max_size=6),
+                                  st.lists(_anything, max_size=6)), max_size=3),
+        tol=st.lists(st.tuples(st.sampled_from([*ARM_JOINTS, "x"]), _anything), max_size=2),
+        gtt=st.floats(-2.0, 3.0),
+    )
+    def arm_goal(names, points, tol, gtt):
+        goal = FollowJointTrajectory.Goal()
+        goal.trajectory.joint_names = names
+        for t, q, v in points:
+            t = t if math.isfinite(t) and abs(t) < 1e6 else 1.0
+            goal.trajectory.points.append(JointTrajectoryPoint(
+                positions=q, velocities=v, time_from_start=duration_msg(t)))
+        goal.goal_tolerance = [JointTolerance(name=n, position=x) for n, x in tol]
+        goal.goal_time_tolerance = duration_msg(gtt)
+        res = g.run_goal(g.arm, goal)
+        assert res.result.error_code in codes
+        assert (res.status == GoalStatus.STATUS_SUCCEEDED) == (res.result.error_code == 0)
+        if res.status != GoalStatus.STATUS_SUCCEEDED:
+            assert res.result.error_string
+
+    @settings(max_examples=15, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(position=_anything, effort=_anything)
+    def gripper(position, effort):
+        goal = GripperCommand.Goal()
+        goal.command.position, goal.command.max_effort = position, effort
+        res = g.run_goal(g.gripper, goal)
+        valid = (math.isfinite(position) and -0.44 - 1e-6 <= position <= 0.30 + 1e-6
+                 and math.isfinite(effort) and effort >= 0)
+        assert (res.status == GoalStatus.STATUS_SUCCEEDED) == valid
+        assert math.isfinite(res.result.position)
+
+    arm_goal()
+    gripper()
+    res = g.run_goal(g.arm, trajectory_goal([(1.2, [-2.5, 1.8, -1.8, -1.5, -2.5])]))
+    assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.error_string
+
+
+def test_any_service_request_is_answered(graph):
+    """Property: ResetWorld (any seed) always answers that an operator must reset; SetMotors
+    switches the motors and says so; the driver keeps serving goals afterwards."""
+    g = graph()
+    g.ready()
+
+    @settings(max_examples=10, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(seed=st.integers(-(2**31), 2**31 - 1))
+    def reset(seed):
+        reply = g.call(g.reset_world, ResetWorld.Request(seed=seed))
+        assert not reply.success and "operator" in reply.message
+
+    reset()
+    for enable in (False, True, True):
+        reply = g.call(g.set_motors, SetMotors.Request(enable=enable))
+        assert reply.success and ("on" if enable else "off") in reply.message
+    res = g.run_goal(g.arm, trajectory_goal([(1.5, [-2.5, 1.8, -1.8, -1.5, -2.5])]))
+    assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.error_string

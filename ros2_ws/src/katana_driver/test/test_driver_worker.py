@@ -4,7 +4,7 @@ import threading
 
 import pytest
 from katana_driver.core import protocol as p
-from katana_driver.core.arm import ArmWorker
+from katana_driver.core.arm import CALIBRATION_BACKOFF_RAD, ArmWorker
 from katana_driver.core.encoders import EncoderModel
 from katana_driver.core.splines import plan_trajectory
 from katana_driver.core.transport import TcpTransport
@@ -22,9 +22,10 @@ class Worker:
         self.changed = threading.Event()
         host, port = emulator.address
         kwargs.setdefault("reconnect_period", 0.2)
+        model = kwargs.pop("model", MODEL)
         self.worker = ArmWorker(
             TcpTransport(host, port, timeout=0.2),
-            MODEL,
+            model,
             on_state=self._on_state,
             log=lambda level, text: self.logs.append((level, text)),
             **kwargs,
@@ -60,10 +61,23 @@ def worker_for():
         w.worker.stop()
 
 
-def test_calibrates_when_needed_and_says_it_talks_to_the_emulator(make_emulator, worker_for):
-    w = worker_for(make_emulator())
+@pytest.mark.parametrize("variant", ["6M180", "6M90A", "6M90B"])
+def test_calibrates_when_needed_and_ends_inside_the_limits(make_emulator, worker_for, variant):
+    """After the calibration run (every motor on its stop) the arm backs off its stops, so the
+    pose it reports lies strictly inside the joint limits: at the stop itself the converted angle
+    fell 3e-7 rad outside the rounded limits and every IK or goal check refused to start."""
+    model = EncoderModel(variant)
+    w = worker_for(make_emulator(variant=variant), model=model)
     assert w.wait(lambda: w.worker.ready)
-    assert w.worker.state.encoders == [31000, -31000, -31000, 31000, 31000, 31000]
+    back_off = model.calibration_pose(CALIBRATION_BACKOFF_RAD)
+    expected = [round(model.angle_to_encoder(i + 1, q)) for i, q in enumerate(back_off)]
+    assert w.wait(lambda: all(abs(a - b) <= 2 for a, b in
+                              zip(w.worker.state.encoders[:5], expected, strict=True)))
+    positions = w.worker.state.positions
+    for motor in range(1, 6):
+        lower, upper = model.joint_limits(motor)
+        assert lower + 0.005 < positions[motor - 1] < upper - 0.005
+    assert positions[5] == pytest.approx(0.30, abs=1e-3)  # gripper open, not past it
     texts = " ".join(t for _, t in w.logs)
     assert "Axis not calibrated" in texts and "calibration done" in texts
     assert any(level == "warn" and "emulator" in t for level, t in w.logs)
@@ -160,3 +174,32 @@ def test_jobs_fail_fast_when_not_connected(make_emulator, worker_for):
     future = w.worker.submit(lambda client: client.echo())
     with pytest.raises(Exception, match="no connection"):
         future.result(timeout=1)
+
+
+def test_a_refused_segment_ends_the_stream_not_the_worker(make_emulator, worker_for):
+    """The collision test's flake: a collision stopped the arm between two polls, the next
+    spline segment was refused (0xC0), and the ControllerError ended the worker thread, so no
+    joint state came any more. Here the controller refuses the second segment for certain."""
+    emulator = make_emulator(calibrated=True)
+    w = worker_for(emulator)
+    assert w.wait(lambda: w.worker.ready)
+    client = w.worker.client
+    real_send, calls = client.send_spline_all, []
+
+    def send(segments, activity, exact=False):
+        calls.append(activity)
+        if len(calls) == 2:
+            emulator.model.collision_detection = True
+            emulator.model.inject_collision(2)  # the next H is refused: axis stopped
+        return real_send(segments, activity, exact)
+
+    client.send_spline_all = send
+    state = w.worker.state
+    plan = plan_trajectory(MODEL, state.encoders, [3.0], [[-1.5, 1.2, -1.0, -0.5, -1.5]])
+    assert len(plan.segments) > 3
+    stream = w.worker.start_trajectory(plan)
+    with pytest.raises(RuntimeError, match="collision"):
+        stream.finished_sending.result(timeout=10)
+    polls = w.worker.polls
+    assert w.wait(lambda: w.worker.polls > polls + 5)  # the worker still polls
+    assert w.worker._thread.is_alive()

@@ -3,12 +3,14 @@
 Thin: the sequence and its checks are in katana_manipulation.core.pick_place; this node only
 offers them an arm port made of the two action clients (arm_controller/follow_joint_trajectory,
 gripper_controller/gripper_command) and the joint_states subscription, so the sim or the real
-driver can be underneath. Every wait is bounded (waiting for a server, for a goal to be accepted,
-for a result); a wait that runs out cancels the goal and the action ends with TIMEOUT.
+driver can be underneath. Every wait is bounded in wall-clock time (for a server, for a goal to
+be accepted, for a result) and ends at once when the node stops; a wait that runs out cancels
+the goal and the action ends with TIMEOUT. No wait uses the ROS clock, so the node works the
+same with use_sim_time (the fast sim runs many times faster than real time).
 
 Callback groups: the action server's execute callback blocks while it waits on the clients, so
-the server, the clients and the subscription live in separate reentrant groups and the node must
-spin on a MultiThreadedExecutor with at least four threads (its main() makes one).
+the server, the clients and the subscription live in separate groups and the node spins on a
+MultiThreadedExecutor (its main() makes one).
 """
 
 from __future__ import annotations
@@ -16,165 +18,100 @@ from __future__ import annotations
 import math
 import sys
 import threading
-import time
 
-import rclpy
-from builtin_interfaces.msg import Duration
+from katana_common.futures import Stopped
+from katana_common.node_runner import run_node
+from katana_common.params import Param, declare_parameters
+from katana_common.qos import JOINT_STATE_QOS
 from katana_description import models as m
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand, PickAndPlace
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from trajectory_msgs.msg import JointTrajectoryPoint
 
 from katana_manipulation.core import pick_place as pp
 from katana_manipulation.core.kinematics import KatanaKinematics
+from katana_manipulation.ros_arm_port import ARM_ACTION, GRIPPER_ACTION, RosArmPort
 
-ARM_ACTION = "arm_controller/follow_joint_trajectory"
-GRIPPER_ACTION = "gripper_controller/gripper_command"
+#: planner parameters applied live (the next goal plans with them)
+PLANNER_PARAMS = {"approach_height": "approach_height", "transit_height": "transit_height",
+                  "transit_radius": "transit_radius", "grasp_offset": "grasp_offset",
+                  "speed_fraction": "speed_fraction", "min_segment_time_s": "min_segment_time"}
+PARAMS = (
+    Param("model", m.DEFAULT_MODEL, "Katana type (read-only: the kinematics are built once).",
+          choices=tuple(sorted(m.MODELS))),
+    Param("approach_height", 0.06, "Descend onto a block from this far above, m.", 0.01, 0.2,
+          live=True),
+    Param("transit_height", 0.15, "Tool height while panning between places, m (the arm "
+          "reaches 0.13 m top-down; the shoulder lifts the pads further).", 0.05, 0.2, live=True),
+    Param("transit_radius", 0.12, "Tool distance from the pan axis while panning, m.", 0.05, 0.3,
+          live=True),
+    Param("grasp_offset", 0.003, "Tool point above the block centre when grasping, m.",
+          -0.02, 0.02, live=True),
+    Param("speed_fraction", 0.9, "Fraction of each joint's speed limit at a move's peak.",
+          0.05, 1.0, live=True),
+    Param("min_segment_time_s", 0.2, "Shortest trajectory segment, s. The driver merges spline "
+          "knots closer than 0.2 s, so shorter ones can speed the real arm up between points; "
+          "the simulation runs 0.1 (sim.yaml).", 0.02, 1.0, live=True),
+    Param("park_pose", list(m.PARK_POSE), "Five arm joint angles out of the camera's view, rad "
+          "(read-only).", -math.pi, math.pi, length=5),
+    Param("server_timeout_s", 5.0, "Wall seconds to wait for an action server or a goal answer.",
+          0.1, 120.0, live=True),
+    Param("time_scale", 3.0, "A move may take this many times its planned duration (wall).",
+          1.0, 1000.0, live=True),
+    Param("timeout_margin_s", 10.0, "Plus this many wall seconds.", 0.0, 600.0, live=True),
+)
 
 
-def _yaw(q) -> float:
+def yaw_of(q) -> float:
     """Yaw about +z of a geometry_msgs Quaternion."""
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-
-
-def _duration(t: float) -> Duration:
-    sec = int(math.floor(t))
-    return Duration(sec=sec, nanosec=int((t - sec) * 1e9))
-
-
-def _wait_future(future, timeout: float) -> bool:
-    """Block until the rclpy future is done (True) or the timeout passes (False)."""
-    done = threading.Event()
-    future.add_done_callback(lambda _f: done.set())
-    return done.wait(timeout) or future.done()
-
-
-class RosArmPort:
-    """pp.ArmPort over the arm and gripper actions; every call returns within its bound."""
-
-    def __init__(self, node: PickPlaceExecutor) -> None:
-        self.node = node
-
-    def _send(self, client: ActionClient, name: str, goal, result_timeout: float):
-        """(result, '') or (None, why) for a refusal or ("timeout", why) for a wait that ran out."""
-        n = self.node
-        if not client.wait_for_server(timeout_sec=n.server_timeout):
-            return "timeout", f"action server {name} not available"
-        send = client.send_goal_async(goal)
-        if not _wait_future(send, n.server_timeout):
-            return "timeout", f"{name}: no answer to the goal"
-        handle = send.result()
-        if handle is None or not handle.accepted:
-            return None, f"{name}: goal rejected"
-        res = handle.get_result_async()
-        if not _wait_future(res, result_timeout):
-            handle.cancel_goal_async()
-            return "timeout", f"{name}: no result within {result_timeout:.1f} s"
-        return res.result(), ""
-
-    def move(self, points: list[list[float]], times: list[float],
-             velocities: list[list[float]] | None = None) -> pp.MoveResult:
-        goal = FollowJointTrajectory.Goal()
-        goal.trajectory.joint_names = list(m.ARM_JOINTS)
-        vels = velocities or [[] for _ in points]
-        goal.trajectory.points = [
-            JointTrajectoryPoint(positions=list(q), velocities=list(v),
-                                 time_from_start=_duration(t))
-            for q, v, t in zip(points, vels, times, strict=True)
-        ]
-        timeout = times[-1] * self.node.time_scale + self.node.timeout_margin
-        res, why = self._send(self.node.arm_client, ARM_ACTION, goal, timeout)
-        if res is None or res == "timeout":
-            return pp.MoveResult(False, why, timed_out=res == "timeout")
-        if res.result.error_code != FollowJointTrajectory.Result.SUCCESSFUL:
-            msg = res.result.error_string or f"error code {res.result.error_code}"
-            return pp.MoveResult(False, msg)
-        return pp.MoveResult(True)
-
-    def grip(self, position: float, effort: float) -> pp.GripResult:
-        goal = GripperCommand.Goal()
-        goal.command.position = float(position)
-        goal.command.max_effort = float(effort)
-        timeout = 3.0 * self.node.time_scale + self.node.timeout_margin
-        res, why = self._send(self.node.gripper_client, GRIPPER_ACTION, goal, timeout)
-        if res is None or res == "timeout":
-            return pp.GripResult(False, message=why, timed_out=res == "timeout")
-        r = res.result
-        ok = res.status == 4  # GoalStatus.STATUS_SUCCEEDED
-        return pp.GripResult(ok, r.position, r.stalled, r.reached_goal,
-                             "" if ok else f"gripper goal ended with status {res.status}")
-
-    def joint_positions(self) -> dict[str, float] | None:
-        deadline = time.monotonic() + self.node.server_timeout
-        while time.monotonic() < deadline:
-            with self.node.state_lock:
-                latest = self.node.latest_joints
-            if latest is not None:
-                return dict(latest)
-            time.sleep(0.01)
-        return None
 
 
 class PickPlaceExecutor(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("pick_place_executor", **kwargs)
-        d = self._declare
-        d("model", m.DEFAULT_MODEL, f"Katana type: one of {sorted(m.MODELS)}")
-        d("approach_height", 0.06, "descend onto a block from this far above (m)", 0.01, 0.2)
-        d("transit_height", 0.125, "tool height while panning between places (m)", 0.05, 0.2)
-        d("transit_radius", 0.12, "tool distance from the pan axis while panning (m)", 0.05, 0.3)
-        d("grasp_offset", 0.003, "tool point above the block centre when grasping (m)", -0.02, 0.02)
-        d("speed_fraction", 0.9, "fraction of each joint's speed limit at a move's peak", 0.05, 1.0)
-        d("park_pose", list(m.PARK_POSE), "five arm joint angles out of the camera's view (rad)")
-        d("server_timeout", 5.0, "wall seconds to wait for an action server or a goal answer",
-          0.1, 120.0)
-        d("time_scale", 3.0, "a move may take this many times its planned duration (wall)",
-          1.0, 1000.0)
-        d("timeout_margin", 10.0, "plus this many wall seconds", 0.0, 600.0)
-        g = self.get_parameter
-        params = pp.PickPlaceParams(
-            approach_height=g("approach_height").value,
-            transit_height=g("transit_height").value,
-            transit_radius=g("transit_radius").value,
-            grasp_offset=g("grasp_offset").value,
-            speed_fraction=g("speed_fraction").value,
-            park_pose=list(g("park_pose").value),
-        )
-        kin = KatanaKinematics(g("model").value)  # ValueError names the model
-        if len(params.park_pose) != 5 or kin.limit_violation(params.park_pose) is not None:
-            raise ValueError(f"parameter 'park_pose': five angles within the joint limits, got "
-                             f"{params.park_pose}")
-        self.planner = pp.PickPlacePlanner(kin, params)
-        self.server_timeout = g("server_timeout").value
-        self.time_scale = g("time_scale").value
-        self.timeout_margin = g("timeout_margin").value
-
+        self.params = declare_parameters(self, PARAMS, cross_check=self._check_park)
+        self.kin = KatanaKinematics(self.params["model"])
+        self.planner = pp.PickPlacePlanner(self.kin, self._planner_params())
+        self.params.on_change(self._on_params)
+        self.stopping = threading.Event()
         self.state_lock = threading.Lock()
         self.latest_joints: dict[str, float] | None = None
         self._busy = threading.Lock()
         clients = ReentrantCallbackGroup()
-        self.arm_client = ActionClient(self, FollowJointTrajectory,
-                                       ARM_ACTION, callback_group=clients)
-        self.gripper_client = ActionClient(self, GripperCommand,
-                                           GRIPPER_ACTION, callback_group=clients)
-        self.create_subscription(JointState, "joint_states", self._on_joints, 10,
+        self.arm_client = ActionClient(self, FollowJointTrajectory, ARM_ACTION,
+                                       callback_group=clients)
+        self.gripper_client = ActionClient(self, GripperCommand, GRIPPER_ACTION,
+                                           callback_group=clients)
+        self.create_subscription(JointState, "joint_states", self._on_joints, JOINT_STATE_QOS,
                                  callback_group=MutuallyExclusiveCallbackGroup())
         self.server = ActionServer(
             self, PickAndPlace, "pick_and_place", execute_callback=self._execute,
-            goal_callback=self._on_goal, cancel_callback=lambda _g: CancelResponse.ACCEPT,
+            goal_callback=lambda _g: GoalResponse.ACCEPT,  # checked in execute, with a reason
+            cancel_callback=lambda _g: CancelResponse.ACCEPT,
             callback_group=ReentrantCallbackGroup())
         self.port = RosArmPort(self)
 
-    def _declare(self, name, value, text, lo=None, hi=None) -> None:
-        desc = ParameterDescriptor(description=text)
-        if lo is not None:
-            desc.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
-        self.declare_parameter(name, value, desc)
+    @staticmethod
+    def _check_park(values) -> str | None:
+        why = KatanaKinematics(values["model"]).limit_violation(values["park_pose"])
+        return f"parameter 'park_pose' is outside the joint limits: {why}" if why else None
+
+    def _planner_params(self) -> pp.PickPlaceParams:
+        return pp.PickPlaceParams(park_pose=list(self.params["park_pose"]),
+                                  **{field: self.params[name]
+                                     for name, field in PLANNER_PARAMS.items()})
+
+    def _on_params(self, changed: dict) -> None:
+        if any(k in PLANNER_PARAMS for k in changed):  # the next goal plans with them
+            self.planner = pp.PickPlacePlanner(self.kin, self._planner_params())
+
+    def stop(self) -> None:
+        """End every wait at once (run_node calls this on shutdown)."""
+        self.stopping.set()
 
     def _on_joints(self, msg: JointState) -> None:
         if len(msg.name) != len(msg.position):
@@ -187,69 +124,65 @@ class PickPlaceExecutor(Node):
             if all(n in merged for n in m.ALL_JOINTS):
                 self.latest_joints = merged
 
-    def _on_goal(self, _goal) -> GoalResponse:
-        return GoalResponse.ACCEPT  # checked in execute, so a refusal carries its reason
+    def _feedback(self, goal_handle):
+        def publish(phase: str, progress: float) -> None:
+            if self.stopping.is_set():
+                return
+            try:
+                goal_handle.publish_feedback(PickAndPlace.Feedback(phase=phase,
+                                                                   progress=float(progress)))
+            except Exception:  # the context went down under us (a signal)
+                if self.context.ok():
+                    raise
+                self.stopping.set()
+        return publish
 
     def _execute(self, goal_handle):
         g = goal_handle.request
-        result = PickAndPlace.Result()
         if not self._busy.acquire(blocking=False):
-            result.success, result.error_code = False, PickAndPlace.Result.ABORTED
-            result.message = "another pick_and_place is running"
-            goal_handle.abort()
-            return result
+            out = pp.PickPlaceResult(False, pp.ABORTED, "another pick_and_place is running")
+            return self._finish(goal_handle, g, out)
         try:
             req = pp.PickPlaceRequest(
                 pick=(g.pick.position.x, g.pick.position.y, g.pick.position.z),
-                pick_yaw=_yaw(g.pick.orientation),
+                pick_yaw=yaw_of(g.pick.orientation),
                 block_size=(g.block_size.x, g.block_size.y, g.block_size.z),
                 place=(g.place.position.x, g.place.position.y, g.place.position.z),
-                place_yaw=_yaw(g.place.orientation),
+                place_yaw=yaw_of(g.place.orientation),
             )
-
-            def feedback(phase: str, progress: float) -> None:
-                goal_handle.publish_feedback(PickAndPlace.Feedback(phase=phase,
-                                                                   progress=float(progress)))
-
-            out = pp.execute_pick_place(req, self.port, self.planner, feedback,
-                                        cancelled=lambda: goal_handle.is_cancel_requested)
+            out = pp.execute_pick_place(
+                req, self.port, self.planner, self._feedback(goal_handle),
+                cancelled=lambda: goal_handle.is_cancel_requested or self.stopping.is_set())
+        except Stopped:
+            out = pp.PickPlaceResult(False, pp.ABORTED, "the executor is shutting down")
         except Exception as exc:  # a malformed goal must never take the node down
             out = pp.PickPlaceResult(False, pp.INVALID_GOAL, f"bad goal: {exc}")
         finally:
             self._busy.release()
-        result.success, result.error_code, result.message = out.success, out.code, out.message
-        label = g.block_id or "block"
-        if out.success:
-            self.get_logger().info(f"pick_and_place {label}: placed")
-            goal_handle.succeed()
-        else:
-            self.get_logger().warning(f"pick_and_place {label}: {out.message}")
-            if out.code == pp.ABORTED and goal_handle.is_cancel_requested:
+        return self._finish(goal_handle, g, out)
+
+    def _finish(self, goal_handle, goal, out: pp.PickPlaceResult) -> PickAndPlace.Result:
+        result = PickAndPlace.Result(success=out.success, error_code=out.code,
+                                     message=out.message)
+        label = goal.block_id or "block"
+        try:
+            if out.success:
+                self.get_logger().info(f"pick_and_place {label}: placed")
+                goal_handle.succeed()
+            elif out.code == pp.ABORTED and goal_handle.is_cancel_requested:
                 goal_handle.canceled()
             else:
+                self.get_logger().warning(f"pick_and_place {label}: {out.message}")
                 goal_handle.abort()
+        except Exception:  # the context is gone (shutdown): nobody is left to tell
+            if not self.stopping.is_set():
+                raise
         return result
 
 
 def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=args)
-    try:
-        node = PickPlaceExecutor()
-    except Exception as exc:  # invalid parameters: say which, exit non-zero
-        print(f"pick_place_executor: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    executor = MultiThreadedExecutor(num_threads=4)
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(PickPlaceExecutor, "pick_place_executor", args,
+                    executor_factory=lambda: MultiThreadedExecutor(num_threads=4))
 
 
 if __name__ == "__main__":

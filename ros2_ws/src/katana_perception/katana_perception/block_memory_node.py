@@ -2,69 +2,79 @@
 
 Subscribes perception/detections (what the camera sees now), curiosity/experience (where an
 experiment put a block and whether it stayed) and camera/camera_info (to locate a seen block
-on the plane of its remembered level). Publishes world/blocks (transient local) after every
+on the plane of its remembered level). Publishes memory/blocks (transient local) after every
 detection frame and every experience, stamped with the image time it reflects.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 
+from katana_common.node_runner import run_node
+from katana_common.params import Param, declare_parameters
+from katana_common.qos import EVENT_QOS, SENSOR_QOS, STATE_QOS
+from katana_common.scene import SCENE_PARAMS
 from katana_interfaces.msg import BlockArray, Experience
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
 from .conversions import blocks_to_msg, calibration_from_camera_info, seen_from_msg, yaw_of
 from .core.memory import BlockMemory, MemoryParams
-from .params import STATE_QOS, declare, declare_scene, run_node
+from .specs import EXTRINSICS_FILE, check_files_and_colors
+
+#: experiences placing a block farther than this from the pan axis are refused, m
+WORKSPACE_RADIUS_M = 1.0
+
+SPECS = (
+    *SCENE_PARAMS, EXTRINSICS_FILE,
+    Param("position_tolerance", 0.015, "A block seen farther than this from where it was "
+          "remembered has moved, m (live).", 0.001, 0.2, live=True),
+    Param("occluded_tolerance", 0.025, "The same for a block seen only in part, m (live).",
+          0.001, 0.2, live=True),
+    Param("cover_fraction", 0.25, "Footprint overlap (share of a block) that puts one block "
+          "on another (live).", 0.01, 1.0, live=True),
+    Param("forget_after", 0, "Forget a block neither seen nor covered for this many frames; "
+          "0 = never (live).", 0, 100000, live=True),
+)
 
 
 class BlockMemoryNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("block_memory_node", **kwargs)
-        scene = declare_scene(self)
-        self.world_frame = scene["world_frame"]
-        self.block_size = tuple(scene["block_size"])
-        self.camera_position = scene["camera_position"]
-        self.camera_rpy = scene["camera_rpy"]
-        self.extrinsics_file = scene["extrinsics_file"]
-        self.params = MemoryParams(
-            position_tolerance=declare(
-                self, "position_tolerance", 0.015,
-                "A block seen farther than this from where it was remembered has moved, m "
-                "(0.001..0.2).", 0.001, 0.2),
-            occluded_tolerance=declare(
-                self, "occluded_tolerance", 0.025,
-                "The same for a block seen only in part, m (0.001..0.2).", 0.001, 0.2),
-            cover_fraction=declare(
-                self, "cover_fraction", 0.25,
-                "Footprint overlap (share of a block) that puts one block on another "
-                "(0.01..1).", 0.01, 1.0),
-            forget_after=declare(
-                self, "forget_after", 0,
-                "Forget a block neither seen nor covered for this many frames; 0 = never "
-                "(0..100000).", 0, 100000),
-        )
+        self.params = declare_parameters(self, SPECS, check_files_and_colors)
+        self.world_frame = self.params["world_frame"]
+        self.block_size = tuple(self.params["block_size"])
+        self.memory_params = MemoryParams()
+        self._apply({})
+        self.params.on_change(self._apply)
         self.memory: BlockMemory | None = None
         self.last_stamp = None
-        self.pub = self.create_publisher(BlockArray, "world/blocks", STATE_QOS)
-        self.create_subscription(BlockArray, "perception/detections", self.on_detections, 10)
-        self.create_subscription(Experience, "curiosity/experience", self.on_experience, 10)
+        self.pub = self.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
+        self.create_subscription(BlockArray, "perception/detections", self.on_detections,
+                                 EVENT_QOS)
+        self.create_subscription(Experience, "curiosity/experience", self.on_experience,
+                                 EVENT_QOS)
         self.create_subscription(CameraInfo, "camera/camera_info", self.on_camera_info,
-                                 qos_profile_sensor_data)
+                                 SENSOR_QOS)
+
+    def _apply(self, changed: dict) -> None:
+        mp = self.memory_params  # shared with BlockMemory: a change applies from the next frame
+        for name in ("position_tolerance", "occluded_tolerance", "cover_fraction",
+                     "forget_after"):
+            setattr(mp, name, self.params[name])
 
     def on_camera_info(self, msg: CameraInfo) -> None:
         try:
-            calib = calibration_from_camera_info(msg, self.camera_position, self.camera_rpy,
-                                                 self.extrinsics_file)
+            calib = calibration_from_camera_info(msg, self.params["camera_position"],
+                                                 self.params["camera_rpy"],
+                                                 self.params["extrinsics_file"])
         except ValueError as err:
             self.get_logger().warn(f"camera_info rejected: {err}", throttle_duration_sec=5.0)
             return
         if self.memory is None:
-            self.memory = BlockMemory(calib, self.params, self.block_size)
+            self.memory = BlockMemory(calib, self.memory_params, self.block_size)
         else:
             self.memory.calibration = calib
 
@@ -77,11 +87,19 @@ class BlockMemoryNode(Node):
                                    f"expected {self.world_frame!r}", throttle_duration_sec=5.0)
             return
         seen = []
+        calib = self.memory.calibration
         for b in msg.blocks:
             try:
-                seen.append(seen_from_msg(b))
+                s = seen_from_msg(b)
             except ValueError as err:
                 self.get_logger().warn(f"detection ignored: {err}", throttle_duration_sec=5.0)
+                continue
+            if not (0.0 <= s.u <= calib.width and 0.0 <= s.v <= calib.height):
+                self.get_logger().warn(f"detection ignored: {s.id!r} at pixel ({s.u:.4g}, "
+                                       f"{s.v:.4g}) is outside the {calib.width}x"
+                                       f"{calib.height} image", throttle_duration_sec=5.0)
+                continue
+            seen.append(s)
         if len({s.id for s in seen}) != len(seen):
             self.get_logger().warn("detections rejected: the same block id twice",
                                    throttle_duration_sec=5.0)
@@ -101,8 +119,13 @@ class BlockMemoryNode(Node):
             self.get_logger().warn(f"experience rejected: label {msg.label} is not +1 or -1")
             return
         p = msg.instance.placement
-        if not (math.isfinite(p.position.x) and math.isfinite(p.position.y)):
+        q = p.orientation
+        if not all(math.isfinite(v) for v in (p.position.x, p.position.y, q.x, q.y, q.z, q.w)):
             self.get_logger().warn("experience rejected: placement is not finite")
+            return
+        if math.hypot(p.position.x, p.position.y) > WORKSPACE_RADIUS_M:
+            self.get_logger().warn(f"experience rejected: placement more than "
+                                   f"{WORKSPACE_RADIUS_M} m from the arm")
             return
         note = self.memory.apply_experience(
             msg.moved_block, int(msg.label), list(msg.instance.support_ids),
@@ -117,12 +140,18 @@ class BlockMemoryNode(Node):
             header.stamp = self.last_stamp
         else:
             header.stamp = self.get_clock().now().to_msg()
-        self.pub.publish(blocks_to_msg(self.memory.snapshot(), header))
+        blocks = self.memory.snapshot()
+        bad = [b.id for b in blocks if not all(math.isfinite(v) for v in (b.x, b.y, b.z, b.yaw))]
+        if bad:  # a bug upstream: say so, publish only what is sound
+            self.get_logger().error(f"not published: non-finite pose of {bad}",
+                                    throttle_duration_sec=5.0)
+            blocks = [b for b in blocks if b.id not in bad]
+        self.pub.publish(blocks_to_msg(blocks, header))
 
 
-def main(args: list[str] | None = None) -> None:
-    run_node(BlockMemoryNode, "block_memory_node", SingleThreadedExecutor, args)
+def main(args: list[str] | None = None) -> int:
+    return run_node(BlockMemoryNode, "block_memory_node", args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -10,6 +10,8 @@ cannot tell a long focal length from a far camera.
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
 from pathlib import Path
 
@@ -42,29 +44,76 @@ tilt and shift confused, which costs several mm at other heights.
 """
 
 
+def _readable_file(text: str) -> Path:
+    path = Path(text).expanduser()
+    if not path.is_file() or not os.access(path, os.R_OK):
+        raise argparse.ArgumentTypeError(f"a readable file, got {text!r}")
+    return path
+
+
+def _number(low: float, low_open: bool):
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        ok = math.isfinite(value) and (value > low if low_open else value >= low)
+        if not ok:
+            raise argparse.ArgumentTypeError(
+                f"a finite number {'>' if low_open else '>='} {low:g}, got {text!r}")
+        return value
+    return parse
+
+
+def _writable_dir(text: str) -> Path:
+    """A folder that exists and is writable, or can be made in a writable one."""
+    path = Path(text).expanduser()
+    probe = path
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+        raise argparse.ArgumentTypeError(f"a writable folder, got {text!r}")
+    return path
+
+
+def _color_entry(text: str) -> str:
+    try:
+        parse_color_table([text])
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"NAME:LO-HI[,LO-HI] with hues 0..179 ({err})") from None
+    return text
+
+
+def _name(text: str) -> str:
+    if not text.strip():
+        raise argparse.ArgumentTypeError("a non-empty name")
+    return text
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="katana-calibrate",
         description="Calibrate the overhead camera from >= 4 blocks/markers at known places "
                     "(cv2.solvePnP).",
         epilog=USAGE_EXAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--image", required=True, type=Path, action="append",
+    ap.add_argument("--image", required=True, type=_readable_file, action="append",
                     help="overhead image (PNG/JPG) with the arm out of view; repeat with "
                          "--points for more views (more points: a better pose)")
-    ap.add_argument("--points", required=True, type=Path, action="append",
+    ap.add_argument("--points", required=True, type=_readable_file, action="append",
                     help="YAML file of the known points of the matching --image")
-    ap.add_argument("--camera-info", type=Path,
+    ap.add_argument("--camera-info", type=_readable_file,
                     help="intrinsics: ROS camera_info YAML (camera_calibration output)")
-    ap.add_argument("--fx", type=float, help="focal length in px, when no --camera-info")
-    ap.add_argument("--fy", type=float, help="default: fx")
-    ap.add_argument("--cx", type=float, help="default: (width - 1) / 2")
-    ap.add_argument("--cy", type=float, help="default: (height - 1) / 2")
-    ap.add_argument("--color-table", nargs="+", metavar="NAME:LO-HI",
+    ap.add_argument("--fx", type=_number(0.0, True),
+                    help="focal length in px, when no --camera-info")
+    ap.add_argument("--fy", type=_number(0.0, True), help="default: fx")
+    ap.add_argument("--cx", type=_number(0.0, False), help="default: (width - 1) / 2")
+    ap.add_argument("--cy", type=_number(0.0, False), help="default: (height - 1) / 2")
+    ap.add_argument("--color-table", nargs="+", metavar="NAME:LO-HI", type=_color_entry,
                     help="colour table entries, as perception_node's color_table parameter")
-    ap.add_argument("--out-dir", type=Path, default=Path("."),
+    ap.add_argument("--out-dir", type=_writable_dir, default=Path("."),
                     help="where camera_info.yaml and extrinsics.yaml go (default: .)")
-    ap.add_argument("--camera-name", default="overhead_camera")
-    ap.add_argument("--max-rms", type=float, default=2.0,
+    ap.add_argument("--camera-name", default="overhead_camera", type=_name)
+    ap.add_argument("--max-rms", type=_number(0.0, True), default=2.0,
                     help="fail when the RMS reprojection error exceeds this, px (default 2)")
     return ap
 
@@ -130,10 +179,12 @@ def calibrate(views: list[tuple[np.ndarray, dict, list, list]], K: np.ndarray, D
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
+    if len(args.image) != len(args.points):
+        ap.error(f"--points: {len(args.image)} --image but {len(args.points)} --points; give "
+                 "one points file per image")
+    if args.camera_info is None and args.fx is None:
+        ap.error("--camera-info/--fx: intrinsics needed: --camera-info FILE or --fx PX (> 0)")
     try:
-        if len(args.image) != len(args.points):
-            ap.error(f"{len(args.image)} --image but {len(args.points)} --points: give one "
-                     "points file per image")
         images = []
         for path in args.image:
             bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
@@ -150,8 +201,6 @@ def main(argv: list[str] | None = None) -> int:
             cx = args.cx if args.cx is not None else (w - 1) / 2.0
             cy = args.cy if args.cy is not None else (h - 1) / 2.0
             K, D = np.array([[args.fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), np.zeros(5)
-        else:
-            ap.error("intrinsics needed: --camera-info FILE or --fx PX")
         views, sizes = [], set()
         for rgb, path in zip(images, args.points, strict=True):
             blocks, mw, mp, size = read_points(path)

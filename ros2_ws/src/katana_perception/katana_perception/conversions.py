@@ -65,6 +65,15 @@ def calibration_from_camera_info(
     if msg.width <= 0 or msg.height <= 0:
         raise ValueError(f"CameraInfo has no image size ({msg.width}x{msg.height})")
     d = list(msg.d)
+    if not all(math.isfinite(v) for v in d):
+        raise ValueError(f"CameraInfo d (distortion) is not finite: {d}")
+    if len(d) not in (0, 4, 5, 8, 12, 14):
+        raise ValueError(f"CameraInfo d has {len(d)} coefficients; want 0, 4, 5, 8, 12 or 14")
+    for name, values in (("p", msg.p), ("r", msg.r)):
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"CameraInfo {name} is not finite: {list(values)}")
+    if msg.width > 20000 or msg.height > 20000:
+        raise ValueError(f"CameraInfo image size {msg.width}x{msg.height} is implausible")
     K = np.asarray(k, dtype=float).reshape(3, 3)
     D = np.asarray(d, dtype=float) if d else np.zeros(5)
     if extrinsics_file:
@@ -126,7 +135,7 @@ def blocks_to_msg(blocks: Iterable[Block], header: Header) -> BlockArray:
 
 
 def blocks_from_msg(msg: BlockArray) -> list[Block]:
-    """world/blocks -> memory blocks. The message has levels, not supports: a block at level
+    """memory/blocks -> memory blocks. The message has levels, not supports: a block at level
     L rests on the level L-1 block its footprint overlaps most (each block carries one)."""
     out = []
     for m in msg.blocks:

@@ -1,6 +1,6 @@
 """fovea_node: the instances of the current setting and the top-down fovea search.
 
-Subscribes world/blocks (transient local), camera/camera_info and camera/image_raw (sensor
+Subscribes memory/blocks (transient local), camera/camera_info and camera/image_raw (sensor
 data; the image is used only with mask_source "image"). Serves fovea/observe (every distinct
 state-action pair of the setting, in scan order) and fovea/find_placement (a fovea location
 realising a planned pair). Publishes fovea/markers: the fovea squares of the last answer.
@@ -10,14 +10,18 @@ from __future__ import annotations
 
 import colorsys
 import math
+import sys
 
 import numpy as np
 from geometry_msgs.msg import Point
+from katana_common.node_runner import run_node
+from katana_common.params import Param, declare_parameters
+from katana_common.qos import SENSOR_QOS, STATE_QOS
+from katana_common.scene import SCENE_PARAMS
 from katana_interfaces.msg import BlockArray
 from katana_interfaces.srv import FindPlacement, ObserveSetting
-from rclpy.executors import SingleThreadedExecutor
+from katana_manipulation.core.reach import place_reach_table
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
@@ -28,74 +32,67 @@ from .conversions import (
     image_to_rgb,
     instance_to_msg,
 )
-from .core.colors import color_table_strings, parse_color_table
+from .core.colors import parse_color_table
 from .core.fovea import N_ACTIONS, FoveaParams, FoveaScene, Instance, NotFound
 from .core.segmentation import Segmenter
-from .params import STATE_QOS, ParameterError, declare, declare_scene, require_length, run_node
+from .specs import COLOR_TABLE, EXTRINSICS_FILE, check_files_and_colors
+
+SPECS = (
+    *SCENE_PARAMS, EXTRINSICS_FILE,
+    Param("fovea_size_px", 40, "Fovea window edge, px.", 4, 200),
+    Param("point_offset_px", 10.0, "r: the outer test points sit at (+-r, +-r) px.", 0.5, 99.0),
+    Param("grid_step_px", 6.0, "Fovea grid step around a stack top, px.", 0.5, 100.0),
+    Param("grid_radius_px", 36.0, "Fovea grid half-width around a stack top, px.", 0.0, 200.0),
+    Param("fine_step_px", 2.0, "find_placement's second, finer grid step, px.", 0.5, 100.0),
+    Param("table_step_m", 0.02, "Grid of candidate table places, m.", 0.002, 0.2),
+    Param("play_x", [0.14, 0.30], "Play area x interval, m.", -2.0, 2.0, length=2),
+    Param("play_y", [-0.16, 0.16], "Play area y interval, m.", -2.0, 2.0, length=2),
+    Param("clearance", 0.005, "Free margin around a placed block, m.", 0.0, 0.1),
+    Param("max_state", 3, "Highest stack offered for placement.", 0, 32),
+    Param("table_yaw", 0.0, "Yaw of blocks placed on the table, rad.", -math.pi, math.pi),
+    Param("mask_source", "memory", "'memory': block pixels are the remembered top faces "
+          "re-projected; 'image': visible top blocks use their segmented pixels.",
+          choices=("memory", "image")),
+    COLOR_TABLE,
+)
+
+
+def _fovea_params(p) -> FoveaParams:
+    """Fovea settings; the reach per stack height comes from the arm's kinematics."""
+    bands = place_reach_table(p["max_state"], p["block_size"][2])
+    return FoveaParams(
+        size_px=p["fovea_size_px"], offset_px=p["point_offset_px"],
+        grid_step_px=p["grid_step_px"], grid_radius_px=p["grid_radius_px"],
+        fine_step_px=p["fine_step_px"], table_step_m=p["table_step_m"],
+        reach_by_state=tuple((b.min_m, b.max_m) for b in bands if not b.empty),
+        area_x=tuple(p["play_x"]), area_y=tuple(p["play_y"]), clearance=p["clearance"],
+        max_state=p["max_state"], table_yaw=p["table_yaw"])
+
+
+def _cross_check(values) -> str | None:
+    problem = check_files_and_colors(values)
+    if problem:
+        return problem
+    try:
+        _fovea_params(values).validate()
+    except ValueError as err:
+        return str(err)
+    return None
 
 
 class FoveaNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("fovea_node", **kwargs)
-        scene = declare_scene(self)
-        self.world_frame = scene["world_frame"]
-        self.block_size = tuple(scene["block_size"])
-        self.camera_position = scene["camera_position"]
-        self.camera_rpy = scene["camera_rpy"]
-        self.extrinsics_file = scene["extrinsics_file"]
-        size = declare(self, "fovea_size_px", 40, "Fovea window edge, px (4..200).", 4, 200)
-        self.fovea = FoveaParams(
-            size_px=size,
-            offset_px=declare(self, "point_offset_px", 10.0,
-                              "r: the outer test points sit at (+-r, +-r) px (0.5..99).",
-                              0.5, 99.0),
-            grid_step_px=declare(self, "grid_step_px", 6.0,
-                                 "Fovea grid step around a stack top, px (0.5..100).", 0.5, 100.0),
-            grid_radius_px=declare(self, "grid_radius_px", 36.0,
-                                   "Fovea grid half-width around a stack top, px (0..200).",
-                                   0.0, 200.0),
-            fine_step_px=declare(self, "fine_step_px", 2.0,
-                                 "find_placement's second, finer grid step, px (0.5..100).",
-                                 0.5, 100.0),
-            table_step_m=declare(self, "table_step", 0.02,
-                                 "Grid of candidate table places, m (0.002..0.2).", 0.002, 0.2),
-            reach_min=declare(self, "reach_min", 0.14,
-                              "Nearest placement to the pan axis, m (0..1).", 0.0, 1.0),
-            reach_max=declare(self, "reach_max", 0.29,
-                              "Farthest placement from the pan axis, m (0..1).", 0.0, 1.0),
-            reach_max_by_state=tuple(declare(
-                self, "reach_max_by_state", [0.30, 0.28, 0.25, 0.20],
-                "Farthest placement per stack height 0, 1, 2, ... (last entry holds above), m "
-                "(0..1); the arm reaches less far over taller stacks.", 0.0, 1.0)),
-            area_x=tuple(require_length("play_x", declare(
-                self, "play_x", [0.14, 0.30], "Play area x interval, m (-2..2).", -2.0, 2.0), 2)),
-            area_y=tuple(require_length("play_y", declare(
-                self, "play_y", [-0.16, 0.16], "Play area y interval, m (-2..2).", -2.0, 2.0), 2)),
-            clearance=declare(self, "clearance", 0.005,
-                              "Free margin around a placed block, m (0..0.1).", 0.0, 0.1),
-            max_state=declare(self, "max_state", 3,
-                              "Highest stack offered for placement (0..32).", 0, 32),
-            table_yaw=declare(self, "table_yaw", 0.0,
-                              "Yaw of blocks placed on the table, rad (-pi..pi).",
-                              -math.pi, math.pi),
-        )
-        try:
-            self.fovea.validate()
-        except ValueError as err:
-            raise ParameterError(str(err)) from err
-        self.mask_source = declare(
-            self, "mask_source", "memory",
-            "'memory': block pixels are the remembered top faces re-projected; 'image': visible "
-            "top blocks use their segmented pixels from camera/image_raw.")
-        if self.mask_source not in ("memory", "image"):
-            raise ParameterError(f"parameter 'mask_source': {self.mask_source!r} is not "
-                                 "'memory' or 'image'")
-        table = declare(self, "color_table", color_table_strings(),
-                        "Colour table for mask_source 'image' (see perception_node).")
-        try:
-            self.segmenter = Segmenter(parse_color_table(table), block_size=self.block_size)
-        except ValueError as err:
-            raise ParameterError(f"parameter 'color_table': {err}") from err
+        self.params = declare_parameters(self, SPECS, _cross_check)
+        p = self.params
+        self.world_frame = p["world_frame"]
+        self.block_size = tuple(p["block_size"])
+        self.fovea = _fovea_params(p)
+        self.mask_source = p["mask_source"]
+        self.segmenter = Segmenter(parse_color_table(p["color_table"]),
+                                   block_size=self.block_size)
+        self.get_logger().info("placement reach per stack height (kinematics): " + ", ".join(
+            f"{s}: {lo:.3f}..{hi:.3f} m" for s, (lo, hi) in enumerate(self.fovea.reach_by_state)))
 
         self.calibration = None
         self.blocks = None
@@ -103,11 +100,11 @@ class FoveaNode(Node):
         self.setting = 0
         self._key = None
         self._scene: FoveaScene | None = None
-        self.pub_markers = self.create_publisher(MarkerArray, "fovea/markers", 10)
-        self.create_subscription(BlockArray, "world/blocks", self.on_blocks, STATE_QOS)
+        self.pub_markers = self.create_publisher(MarkerArray, "fovea/markers", STATE_QOS)
+        self.create_subscription(BlockArray, "memory/blocks", self.on_blocks, STATE_QOS)
         self.create_subscription(CameraInfo, "camera/camera_info", self.on_camera_info,
-                                 qos_profile_sensor_data)
-        self.create_subscription(Image, "camera/image_raw", self.on_image, qos_profile_sensor_data)
+                                 SENSOR_QOS)
+        self.create_subscription(Image, "camera/image_raw", self.on_image, SENSOR_QOS)
         self.create_service(ObserveSetting, "fovea/observe", self.on_observe)
         self.create_service(FindPlacement, "fovea/find_placement", self.on_find)
 
@@ -115,7 +112,8 @@ class FoveaNode(Node):
     def on_camera_info(self, msg: CameraInfo) -> None:
         try:
             self.calibration = calibration_from_camera_info(
-                msg, self.camera_position, self.camera_rpy, self.extrinsics_file)
+                msg, self.params["camera_position"], self.params["camera_rpy"],
+                self.params["extrinsics_file"])
         except ValueError as err:
             self.get_logger().warn(f"camera_info rejected: {err}", throttle_duration_sec=5.0)
 
@@ -131,7 +129,7 @@ class FoveaNode(Node):
         try:
             blocks = blocks_from_msg(msg)
         except ValueError as err:
-            self.get_logger().warn(f"world/blocks rejected: {err}")
+            self.get_logger().warn(f"memory/blocks rejected: {err}", throttle_duration_sec=5.0)
             return
         key = sorted((b.id, b.level, b.support) for b in blocks)
         poses = {b.id: (b.x, b.y) for b in blocks}
@@ -147,7 +145,7 @@ class FoveaNode(Node):
     # ------------------------------------------------------------------ services
     def _current_scene(self) -> FoveaScene:
         if self.blocks is None:
-            raise NotFound("no world/blocks received yet")
+            raise NotFound("no memory/blocks received yet")
         if self.calibration is None:
             raise NotFound("no camera/camera_info received yet")
         if self._scene is None or self.mask_source == "image":
@@ -165,11 +163,14 @@ class FoveaNode(Node):
 
     def on_observe(self, req: ObserveSetting.Request, res: ObserveSetting.Response):
         try:
-            scene = self._current_scene()
+            insts = self._current_scene().observe(max_state=int(req.max_state))
         except NotFound as err:
             res.success, res.message = False, str(err)
             return res
-        insts = scene.observe(max_state=int(req.max_state))
+        except Exception as err:  # a bug must not end the node: answer, and say so
+            res.success, res.message = False, f"internal error: {err!r}"
+            self.get_logger().error(f"observe: {err!r}")
+            return res
         res.success = True
         res.setting = self.setting
         res.instances = [instance_to_msg(i) for i in insts]
@@ -179,11 +180,21 @@ class FoveaNode(Node):
         return res
 
     def on_find(self, req: FindPlacement.Request, res: FindPlacement.Response):
+        if not (0 <= req.state <= self.fovea.max_state and 1 <= req.action <= N_ACTIONS):
+            res.found = False
+            res.message = (f"no placement for stack height {req.state}, action {req.action}: "
+                           f"state must be in 0..{self.fovea.max_state} (max_state), action "
+                           f"in 1..{N_ACTIONS}")
+            return res
         try:
             inst = self._current_scene().find(int(req.state), int(req.action))
         except NotFound as err:
             res.found, res.message = False, str(err)
             self.get_logger().info(f"find_placement({req.state}, {req.action}): {err}")
+            return res
+        except Exception as err:  # a bug must not end the node: answer, and say so
+            res.found, res.message = False, f"internal error: {err!r}"
+            self.get_logger().error(f"find_placement({req.state}, {req.action}): {err!r}")
             return res
         res.found, res.message, res.instance = True, "found", instance_to_msg(inst)
         self.publish_markers([inst])
@@ -223,9 +234,9 @@ class FoveaNode(Node):
         self.pub_markers.publish(out)
 
 
-def main(args: list[str] | None = None) -> None:
-    run_node(FoveaNode, "fovea_node", SingleThreadedExecutor, args)
+def main(args: list[str] | None = None) -> int:
+    return run_node(FoveaNode, "fovea_node", args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

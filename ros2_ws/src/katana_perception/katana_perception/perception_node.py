@@ -1,6 +1,6 @@
 """perception_node: overhead image -> visible blocks; the placement outcome judge.
 
-Subscribes camera/image_raw and camera/camera_info (sensor-data QoS) and world/blocks
+Subscribes camera/image_raw and camera/camera_info (sensor-data QoS) and memory/blocks
 (transient local: the remembered levels, so a block on a stack is located on the right
 plane, and the "before" memory of the judge). Publishes perception/detections
 (katana_interfaces/BlockArray of the blocks seen in the image; `on_top` means its top face is
@@ -11,13 +11,19 @@ judges the newest image against them.
 
 from __future__ import annotations
 
+import math
+import sys
+
 import cv2
 import numpy as np
+from katana_common.node_runner import run_node
+from katana_common.params import Param, declare_parameters
+from katana_common.qos import EVENT_QOS, SENSOR_QOS, STATE_QOS
+from katana_common.scene import SCENE_PARAMS
 from katana_interfaces.msg import BlockArray
 from katana_interfaces.srv import JudgePlacement
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
@@ -29,60 +35,48 @@ from .conversions import (
     placement_from_msg,
     rgb_to_image,
 )
-from .core.colors import color_table_strings, parse_color_table
+from .core.colors import parse_color_table
 from .core.judge import Judge, JudgeParams
 from .core.segmentation import Segmenter
-from .params import STATE_QOS, ParameterError, declare, declare_scene, run_node
+from .specs import COLOR_TABLE, EXTRINSICS_FILE, check_files_and_colors
+
+#: placements the judge accepts: within this distance of the pan axis, below this height, m
+WORKSPACE_RADIUS_M = 1.0
+WORKSPACE_TOP_M = 1.0
+
+SPECS = (
+    *SCENE_PARAMS, EXTRINSICS_FILE, COLOR_TABLE,
+    Param("saturation_min", 80, "Minimum HSV saturation of a block pixel (live).", 0, 255,
+          live=True),
+    Param("value_min", 40, "Minimum HSV value of a block pixel (live).", 0, 255, live=True),
+    Param("min_area_px", 120, "Smallest blob taken for a block, px (live).", 1, 100000,
+          live=True),
+    Param("min_inscribed_px", 6.0, "A blob must contain a disc of this radius, px; thinner "
+          "ones are side faces of covered blocks (live).", 0.0, 100.0, live=True),
+    Param("occlusion_threshold", 0.04, "Share of a top face covered by other colours above "
+          "which a block counts as covered (live).", 0.0, 1.0, live=True),
+    Param("position_tolerance", 0.015, "Judge: placed block centre vs placement point, m "
+          "(live).", 0.001, 0.1, live=True),
+    Param("support_tolerance", 0.006, "Judge: how far a partly seen support block's pixels "
+          "may lie outside where it was, m (live).", 0.001, 0.1, live=True),
+    Param("changed_fraction", 0.15, "Judge: share of the stack's former pixels that may "
+          "change (live).", 0.0, 1.0, live=True),
+    Param("publish_debug_image", True, "Publish perception/debug_image when someone listens "
+          "(live).", live=True),
+)
 
 
 class PerceptionNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("perception_node", **kwargs)
-        scene = declare_scene(self)
-        self.world_frame = scene["world_frame"]
-        self.block_size = tuple(scene["block_size"])
-        self.camera_position = scene["camera_position"]
-        self.camera_rpy = scene["camera_rpy"]
-        self.extrinsics_file = scene["extrinsics_file"]
-        table = declare(self, "color_table", color_table_strings(),
-                        "One entry per block colour, 'name:lo-hi[,lo-hi]' hue intervals on "
-                        "OpenCV's 0..179 scale; the name is the block id.")
-        try:
-            colors = parse_color_table(table)
-        except ValueError as err:
-            raise ParameterError(f"parameter 'color_table': {err}") from err
-        self.segmenter = Segmenter(
-            colors,
-            s_min=declare(self, "saturation_min", 80,
-                          "Minimum HSV saturation of a block pixel (0..255).", 0, 255),
-            v_min=declare(self, "value_min", 40,
-                          "Minimum HSV value of a block pixel (0..255).", 0, 255),
-            min_area_px=declare(self, "min_area_px", 120,
-                                "Smallest blob taken for a block, px (1..100000).", 1, 100000),
-            min_inscribed_px=declare(
-                self, "min_inscribed_px", 6.0,
-                "A blob must contain a disc of this radius, px; thinner ones are side faces "
-                "of covered blocks (0..100).", 0.0, 100.0),
-            block_size=self.block_size,
-            occlusion_threshold=declare(
-                self, "occlusion_threshold", 0.04,
-                "Share of a top face covered by other colours above which a block counts as "
-                "covered (0..1).", 0.0, 1.0),
-        )
-        self.judge_params = JudgeParams(
-            position_tolerance=declare(
-                self, "position_tolerance", 0.015,
-                "Judge: placed block centre vs placement point, m (0.001..0.1).", 0.001, 0.1),
-            support_tolerance=declare(
-                self, "support_tolerance", 0.006,
-                "Judge: how far a partly seen support block's pixels may lie outside where "
-                "it was, m (0.001..0.1).", 0.001, 0.1),
-            changed_fraction=declare(
-                self, "changed_fraction", 0.15,
-                "Judge: share of the stack's former pixels that may change (0..1).", 0.0, 1.0),
-        )
-        self.publish_debug = declare(self, "publish_debug_image", True,
-                                     "Publish perception/debug_image (when someone listens).")
+        self.params = declare_parameters(self, SPECS, check_files_and_colors)
+        p = self.params
+        self.world_frame = p["world_frame"]
+        self.block_size = tuple(p["block_size"])
+        self.segmenter = Segmenter(parse_color_table(p["color_table"]),
+                                   block_size=self.block_size)
+        self._apply(dict(p))
+        p.on_change(self._apply)
 
         self.calibration = None
         self.levels: dict[str, int] = {}
@@ -92,20 +86,33 @@ class PerceptionNode(Node):
         self.frames = 0
         self.before = None  # (snapshot, frame number)
 
-        self.pub_detections = self.create_publisher(BlockArray, "perception/detections", 10)
-        self.pub_debug = self.create_publisher(Image, "perception/debug_image",
-                                               qos_profile_sensor_data)
-        self.create_subscription(Image, "camera/image_raw", self.on_image, qos_profile_sensor_data)
+        self.pub_detections = self.create_publisher(BlockArray, "perception/detections",
+                                                    EVENT_QOS)
+        self.pub_debug = self.create_publisher(Image, "perception/debug_image", SENSOR_QOS)
+        self.create_subscription(Image, "camera/image_raw", self.on_image, SENSOR_QOS)
         self.create_subscription(CameraInfo, "camera/camera_info", self.on_camera_info,
-                                 qos_profile_sensor_data)
-        self.create_subscription(BlockArray, "world/blocks", self.on_world_blocks, STATE_QOS)
+                                 SENSOR_QOS)
+        self.create_subscription(BlockArray, "memory/blocks", self.on_memory_blocks, STATE_QOS)
         self.create_service(JudgePlacement, "perception/judge_placement", self.on_judge)
+
+    def _apply(self, changed: dict) -> None:
+        """Segmentation and judge settings, at start-up and on a live change."""
+        p, seg = self.params, self.segmenter
+        seg.s_min, seg.v_min = int(p["saturation_min"]), int(p["value_min"])
+        seg.min_area_px = int(p["min_area_px"])
+        seg.min_inscribed_px = float(p["min_inscribed_px"])
+        seg.occlusion_threshold = float(p["occlusion_threshold"])
+        self.judge_params = JudgeParams(position_tolerance=p["position_tolerance"],
+                                        support_tolerance=p["support_tolerance"],
+                                        changed_fraction=p["changed_fraction"])
+        self.publish_debug = bool(p["publish_debug_image"])
 
     # ------------------------------------------------------------------ inputs
     def on_camera_info(self, msg: CameraInfo) -> None:
         try:
-            calib = calibration_from_camera_info(msg, self.camera_position, self.camera_rpy,
-                                                 self.extrinsics_file)
+            calib = calibration_from_camera_info(msg, self.params["camera_position"],
+                                                 self.params["camera_rpy"],
+                                                 self.params["extrinsics_file"])
         except ValueError as err:
             self.get_logger().warn(f"camera_info rejected: {err}", throttle_duration_sec=5.0)
             return
@@ -114,11 +121,11 @@ class PerceptionNode(Node):
                                    f"fx {calib.K[0, 0]:.1f}, camera at {calib.centre.round(3)}")
         self.calibration = calib
 
-    def on_world_blocks(self, msg: BlockArray) -> None:
+    def on_memory_blocks(self, msg: BlockArray) -> None:
         try:
             blocks = blocks_from_msg(msg)
         except ValueError as err:
-            self.get_logger().warn(f"world/blocks rejected: {err}")
+            self.get_logger().warn(f"memory/blocks rejected: {err}", throttle_duration_sec=5.0)
             return
         self.memory_blocks = blocks
         self.levels = {b.id: b.level for b in blocks}
@@ -160,7 +167,34 @@ class PerceptionNode(Node):
         return img
 
     # ------------------------------------------------------------------ judge
+    def _instance_problem(self, inst) -> str | None:
+        """Why a PHASE_AFTER instance cannot be judged (None when it can)."""
+        p = inst.placement.position
+        if not all(math.isfinite(v) for v in (p.x, p.y, p.z)):
+            return "the instance's placement is not a finite point"
+        if math.hypot(p.x, p.y) > WORKSPACE_RADIUS_M or not -0.01 <= p.z <= WORKSPACE_TOP_M:
+            return (f"placement ({p.x:.3g}, {p.y:.3g}, {p.z:.3g}) m is outside the workspace "
+                    f"(radius <= {WORKSPACE_RADIUS_M} m, 0 <= z <= {WORKSPACE_TOP_M} m)")
+        names = self.segmenter.names
+        if not 0 <= inst.state < len(names):
+            return f"state {inst.state} is outside 0..{len(names) - 1} (stack heights)"
+        unknown = [b for b in inst.support_ids if b not in names]
+        if unknown:
+            return f"support ids {unknown} are not in the colour table ({', '.join(names)})"
+        if len(inst.support_ids) != inst.state:
+            return (f"state {inst.state} needs {inst.state} support ids, got "
+                    f"{len(inst.support_ids)}")
+        return None
+
     def on_judge(self, req: JudgePlacement.Request, res: JudgePlacement.Response):
+        try:
+            return self._judge(req, res)
+        except Exception as err:  # a bug must not end the node: answer, and say so
+            self.get_logger().error(f"judge_placement: {err!r}")
+            res.success, res.label, res.message = False, 0, f"internal error: {err!r}"
+            return res
+
+    def _judge(self, req: JudgePlacement.Request, res: JudgePlacement.Response):
         res.label = 0
         before_phase = req.phase == JudgePlacement.Request.PHASE_BEFORE
         if not before_phase and req.phase != JudgePlacement.Request.PHASE_AFTER:
@@ -173,11 +207,13 @@ class PerceptionNode(Node):
                 res.message = (f"placed_block {req.placed_block!r} is not in the colour table "
                                f"({', '.join(self.segmenter.names)})")
                 return res
-            try:
-                placement = placement_from_msg(req.instance)
-            except ValueError as err:
-                res.success, res.message = False, str(err)
+            problem = self._instance_problem(req.instance)
+            if problem:
+                res.success, res.message = False, problem
+                self.get_logger().warn(f"judge_placement refused: {problem}",
+                                       throttle_duration_sec=2.0)
                 return res
+            placement = placement_from_msg(req.instance)
         if self.latest_rgb is None or self.calibration is None:
             res.success, res.message = False, "no image (or no camera_info) received yet"
             return res
@@ -200,9 +236,10 @@ class PerceptionNode(Node):
         return res
 
 
-def main(args: list[str] | None = None) -> None:
-    run_node(PerceptionNode, "perception_node", MultiThreadedExecutor, args)
+def main(args: list[str] | None = None) -> int:
+    return run_node(PerceptionNode, "perception_node", args,
+                    executor_factory=MultiThreadedExecutor)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

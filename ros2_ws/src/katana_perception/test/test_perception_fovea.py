@@ -226,7 +226,8 @@ def test_reach_shrinks_with_stack_height():
               Block("green", "green", 0.27, 0.0, 0.0, support="red"),
               Block("blue", "blue", 0.18, 0.06, 0.0)]
     limits = (0.30, 0.28, 0.25, 0.20)
-    fovea = FoveaScene(blocks, CALIB, FoveaParams(reach_max_by_state=limits))
+    bands = tuple((0.14, far) for far in limits)
+    fovea = FoveaScene(blocks, CALIB, FoveaParams(reach_by_state=bands))
     instances = fovea.observe()
     assert {0, 1} <= {i.state for i in instances}
     for i in instances:

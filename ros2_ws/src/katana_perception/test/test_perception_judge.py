@@ -5,7 +5,6 @@ import math
 from collections import Counter
 
 import numpy as np
-import pytest
 from katana_perception.core.calibration import Calibration
 from katana_perception.core.judge import FELL, STABLE, Judge, Placement
 from katana_perception.core.memory import Block
@@ -172,8 +171,8 @@ def physics_trial(world, rng, seed: int):
 
 
 def test_judge_on_pybullet_placements():
-    sim = pytest.importorskip("katana_sim.core", reason="katana_sim not installed")
-    world = sim.SimWorld(sim.SimConfig(num_blocks=6, seed=0))
+    import katana_sim.core as sim  # a declared test_depend: fail, never skip
+    world = sim.PhysicsSim(sim.SimConfig(num_blocks=6, seed=0))
     cam = world.camera
     calib = Calibration.from_camera_rpy(cam.K, cam.position, cam.rpy, cam.width, cam.height)
     judge = Judge(Segmenter(), calib)

@@ -8,6 +8,8 @@ import time
 import numpy as np
 import pytest
 import rclpy
+from katana_common.params import ParameterError
+from katana_common.qos import STATE_QOS
 from katana_interfaces.msg import BlockArray, Experience
 from katana_interfaces.srv import FindPlacement, JudgePlacement, ObserveSetting
 from katana_perception.block_memory_node import BlockMemoryNode
@@ -16,8 +18,7 @@ from katana_perception.core.calibration import Calibration
 from katana_perception.core.memory import Block
 from katana_perception.core.synthetic import Renderer, stack_block
 from katana_perception.fovea_node import FoveaNode
-from katana_perception.params import ParameterError
-from katana_perception.perception_node import STATE_QOS, PerceptionNode
+from katana_perception.perception_node import PerceptionNode
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
@@ -214,7 +215,7 @@ def test_block_memory_node(ros):
     ros.make(BlockMemoryNode)
     pub = ros.helper.create_publisher(BlockArray, "perception/detections", 10)
     exp_pub = ros.helper.create_publisher(Experience, "curiosity/experience", 10)
-    world = ros.collect(BlockArray, "world/blocks", STATE_QOS)
+    world = ros.collect(BlockArray, "memory/blocks", STATE_QOS)
     assert ros.spin_until(lambda: pub.get_subscription_count() > 0)
     ros.camera_info()
     scatter = detections_msg(SCATTER)
@@ -249,7 +250,7 @@ def test_block_memory_node(ros):
     assert abs(got["red"].pose.position.z - 0.045) < 1e-9
     # a late subscriber still gets the state (transient local)
     late = []
-    ros.helper.create_subscription(BlockArray, "world/blocks", late.append, STATE_QOS)
+    ros.helper.create_subscription(BlockArray, "memory/blocks", late.append, STATE_QOS)
     assert ros.spin_until(lambda: late)
     assert by_id(late[-1])["red"].level == 2
     # an experience with a nonsense label changes nothing
@@ -273,8 +274,8 @@ def test_fovea_node_services(ros):
     observe = ros.helper.create_client(ObserveSetting, "fovea/observe")
     find = ros.helper.create_client(FindPlacement, "fovea/find_placement")
     res = ros.call(observe, ObserveSetting.Request(max_state=255))
-    assert not res.success and "world/blocks" in res.message
-    pub = ros.helper.create_publisher(BlockArray, "world/blocks", STATE_QOS)
+    assert not res.success and "memory/blocks" in res.message
+    pub = ros.helper.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
     pub.publish(blocks_msg([Block("red", "red", 0.18, 0.08, 0.3),
                             # within the 0.25 m reach for placing on a stack of two
                             Block("green", "green", 0.22, -0.08, -0.2),
@@ -307,7 +308,7 @@ def test_pipeline_image_to_instances(ros):
     ros.make(PerceptionNode)
     ros.make(BlockMemoryNode)
     ros.make(FoveaNode)
-    world = ros.collect(BlockArray, "world/blocks", STATE_QOS)
+    world = ros.collect(BlockArray, "memory/blocks", STATE_QOS)
     observe = ros.helper.create_client(ObserveSetting, "fovea/observe")
     scene = SCATTER[1:] + [stack_block("red", 0.185, -0.068, 2, 0.45)]  # red on blue
     blocks_seen = lambda: world and len(world[-1].blocks) == 4  # noqa: E731
@@ -351,7 +352,7 @@ def test_invalid_parameters_stop_the_node_naming_them(ros, cls, params, name):
     ("katana_perception.block_memory_node", "cover_fraction:=7.0"),
     ("katana_perception.fovea_node", "fovea_size_px:=1"),
 ])
-def test_main_exits_non_zero_naming_the_parameter(module, param):
+def test_main_exits_2_naming_the_parameter(module, param):
     import os
     import subprocess
     import sys
@@ -359,14 +360,14 @@ def test_main_exits_non_zero_naming_the_parameter(module, param):
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="OFF")
     proc = subprocess.run([sys.executable, "-m", module, "--ros-args", "-p", param],
                           capture_output=True, text=True, timeout=60, env=env)
-    assert proc.returncode == 1
+    assert proc.returncode == 2  # katana_common.node_runner: an invalid configuration
     assert param.split(":=")[0] in proc.stderr + proc.stdout
 
 
 def test_fovea_node_with_image_masks(ros):
     ros.make(FoveaNode, mask_source="image")
     observe = ros.helper.create_client(ObserveSetting, "fovea/observe")
-    pub = ros.helper.create_publisher(BlockArray, "world/blocks", STATE_QOS)
+    pub = ros.helper.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
     pub.publish(blocks_msg([Block(b.name, b.name, b.x, b.y, b.yaw) for b in SCATTER]))
     res = ros.call(observe, ObserveSetting.Request(max_state=255))
     assert not res.success
@@ -380,3 +381,40 @@ def test_fovea_node_with_image_masks(ros):
     assert {i.state for i in res.instances} == {0, 1}
     assert {tuple(i.support_ids) for i in res.instances if i.state} == {
         (b.name,) for b in SCATTER}
+
+
+def test_live_parameters_apply_and_read_only_ones_are_refused(ros):
+    """Through the SetParameters service `ros2 param set` calls."""
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    from rcl_interfaces.msg import ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    perception = ros.make(PerceptionNode)
+    memory = ros.make(BlockMemoryNode)
+    fovea = ros.make(FoveaNode)
+
+    def set_param(node, name, value):
+        client = ros.helper.create_client(SetParameters, f"{ros.ns}/{node}/set_parameters")
+        kind = (ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
+                if isinstance(value, int) and not isinstance(value, bool) else
+                ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
+                if isinstance(value, float) else
+                ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value))
+        req = SetParameters.Request(parameters=[ParameterMsg(name=name, value=kind)])
+        return ros.call(client, req).results[0]
+
+    ok = set_param("perception_node", "saturation_min", 100)
+    assert ok.successful and perception.segmenter.s_min == 100
+    ok = set_param("perception_node", "position_tolerance", 0.02)
+    assert ok.successful and perception.judge_params.position_tolerance == 0.02
+    bad = set_param("perception_node", "saturation_min", 300)
+    assert not bad.successful and "saturation_min" in bad.reason
+    assert perception.segmenter.s_min == 100  # the old value is kept
+    ro = set_param("perception_node", "color_table", "red:0-7")
+    assert not ro.successful
+    ok = set_param("block_memory_node", "cover_fraction", 0.5)
+    assert ok.successful and memory.memory_params.cover_fraction == 0.5
+    for name, value in (("mask_source", "image"), ("max_state", 2), ("camera_position", 0.3)):
+        ro = set_param("fovea_node", name, value)
+        assert not ro.successful, name
+    assert fovea.mask_source == "memory" and fovea.fovea.max_state == 3

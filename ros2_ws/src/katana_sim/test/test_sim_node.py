@@ -9,18 +9,20 @@ import time
 import numpy as np
 import pytest
 import rclpy
+from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
+from katana_common.qos import JOINT_STATE_QOS, SENSOR_QOS, STATE_QOS
 from katana_description import models as m
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.msg import BlockArray
 from katana_interfaces.srv import ResetWorld
 from katana_sim.sim_node import SimNode
+from rcl_interfaces.srv import SetParameters
 from rclpy.action import ActionClient
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from trajectory_msgs.msg import JointTrajectoryPoint
 
@@ -54,13 +56,14 @@ def graph():
     th.start()
     got: dict = {}
     probe.create_subscription(Image, "camera/image_raw", lambda msg: got.update(image=msg),
-                              qos_profile_sensor_data)
+                              SENSOR_QOS)
     probe.create_subscription(CameraInfo, "camera/camera_info", lambda msg: got.update(info=msg),
-                              qos_profile_sensor_data)
-    probe.create_subscription(JointState, "joint_states", lambda msg: got.update(joints=msg), 10)
+                              SENSOR_QOS)
+    probe.create_subscription(JointState, "joint_states", lambda msg: got.update(joints=msg),
+                              JOINT_STATE_QOS)
     probe.create_subscription(
         BlockArray, "sim/ground_truth", lambda msg: got.update(truth=msg),
-        QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        STATE_QOS)
     arm = ActionClient(probe, FollowJointTrajectory, "arm_controller/follow_joint_trajectory")
     grip = ActionClient(probe, GripperCommand, "gripper_controller/gripper_command")
     reset = probe.create_client(ResetWorld, "sim_node/reset_world")
@@ -147,7 +150,7 @@ def test_bad_trajectories_are_refused_and_the_node_goes_on(graph, names, points,
                                                            why):
     res = _send(graph["arm"], _traj(names, points, times))
     assert res.result.error_code == code and why in res.result.error_string
-    assert res.status == 6  # ABORTED, with the reason in the result
+    assert res.status == GoalStatus.STATUS_ABORTED  # with the reason in the result
     ok = _send(graph["arm"], _traj(["katana_motor1_pan_joint"], [[0.1]], [2.0]))
     assert ok.result.error_code == 0
 
@@ -156,7 +159,7 @@ def test_bad_gripper_goal_is_refused(graph):
     goal = GripperCommand.Goal()
     goal.command.position = 1.5
     res = _send(graph["grip"], goal)
-    assert res.status == 6 and not res.result.reached_goal
+    assert res.status == GoalStatus.STATUS_ABORTED and not res.result.reached_goal
 
 
 def test_reset_world_scatters_again(graph):
@@ -197,3 +200,31 @@ def test_invalid_parameters_stop_the_node_naming_them(param, value):
             SimNode(context=ctx, parameter_overrides=overrides)
     finally:
         rclpy.try_shutdown(context=ctx)
+
+
+def test_stamps_are_simulated_time(graph):
+    got, sim = graph["got"], graph["sim"]
+    wait_for(lambda: "joints" in got and "truth" in got)
+    for msg in (got["joints"], got["truth"]):
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        assert 0.0 <= stamp <= sim.world.time + 1e-6  # sim time since start-up, not the epoch
+
+
+def _set(graph, name, value):
+    client = graph["probe"].create_client(SetParameters, "sim_node/set_parameters")
+    assert client.wait_for_service(timeout_sec=5.0)
+    req = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
+    return _result(client.call_async(req)).results[0]
+
+
+def test_rates_apply_live_and_world_parameters_are_read_only(graph):
+    sim = graph["sim"]
+    assert _set(graph, "camera_rate", 4.0).successful
+    assert sim.outputs.schedule.period("camera") == 0.25  # the next image is due 0.25 s later
+    bad = _set(graph, "camera_rate", 500.0)
+    assert not bad.successful and "camera_rate" in bad.reason
+    assert sim.outputs.schedule.period("camera") == 0.25
+    ro = _set(graph, "num_blocks", 2)
+    assert not ro.successful and "read-only" in ro.reason
+    assert len(sim.world.blocks) == 4
+    assert _set(graph, "camera_rate", 20.0).successful

@@ -16,8 +16,8 @@ import random
 
 import numpy as np
 
+from .environment import PlacementUnavailable, Setting, ShuffledSetting
 from .predictors import one_hot_with_bias
-from .world import PlacementUnavailable, Setting, ShuffledSetting
 
 
 class AbstractBlocksWorld:

@@ -1,4 +1,4 @@
-"""Which block to move for a placement (paper section 2.1)."""
+"""Which block to move for a placement (paper section 2.1), and which blocks the arm can pick."""
 
 from __future__ import annotations
 
@@ -9,13 +9,41 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class BlockView:
-    """What the choice needs to know of a block (from world/blocks)."""
+    """What the choice needs to know of a block (from memory/blocks)."""
 
     id: str
     x: float
     y: float
     on_top: bool
     level: int
+
+
+@dataclass(frozen=True)
+class PickReach:
+    """Where the arm picks a block from above: radii from the pan axis, per block level.
+
+    `bands_m[k]` is the (min, max) radius for a block at level k + 1; a level beyond the list,
+    or an empty band (max <= min), cannot be picked. The figures come from the arm's
+    kinematics (katana_manipulation.core.reach.pick_reach), not from a configuration.
+    """
+
+    bands_m: tuple[tuple[float, float], ...]
+
+    def __post_init__(self) -> None:
+        if not self.bands_m or not all(
+            len(b) == 2 and all(math.isfinite(v) for v in b) for b in self.bands_m
+        ):
+            raise ValueError(f"reach: needs finite (min, max) radii per level, got {self.bands_m}")
+
+    def can_pick(self, x: float, y: float, level: int) -> bool:
+        if not 1 <= level <= len(self.bands_m):
+            return False
+        low, high = self.bands_m[level - 1]
+        return low <= math.hypot(x, y) <= high
+
+    def within_play_area(self, x: float, y: float) -> bool:
+        """Where a block on the table can be picked (a top block elsewhere asks for a reset)."""
+        return self.can_pick(x, y, 1)
 
 
 def choose_block_to_move(

@@ -14,11 +14,12 @@ from pathlib import Path
 import numpy as np
 
 from .abstract_world import AbstractBlocksWorld
-from .explorer import PLAN, QUERY, STRATEGIES, Explorer, make_strategy
+from .explorer import PLAN, QUERY, STRATEGIES, Explorer, Strategy, make_strategy
 from .metrics import cumulative_by_state, model_kl
 from .predictors import PredictorBank, QueryRule
 
 DEFAULT_METHODS = ("q1", "q10", "conf", "random")
+FAST_METHOD_NAMES = ("q1", "q10", "conf", "random")  # fastpath.FAST_METHODS, without numba
 DEFAULT_SNAPSHOTS = (1000, 2000, 3000, 4000)
 
 
@@ -81,15 +82,11 @@ class RunResult:
         return cumulative_by_state(self.states, self.modes == mode, self.n_states, at)
 
 
-def run(
-    config: RunConfig,
-    progress: Callable[[int], object] | None = None,
-    progress_every: int = 100,
-) -> RunResult:
-    """One run of `config.method` in the abstract world; deterministic for `config.seed`.
+ENGINES = ("auto", "fast", "reference")
 
-    progress(k) is called after every `progress_every` steps with k, the steps just done.
-    """
+
+def build_run(config: RunConfig) -> tuple[AbstractBlocksWorld, PredictorBank, Strategy]:
+    """The world, bank and strategy of a run, seeded from config.seed."""
     world_seed, agent_seed = np.random.SeedSequence(config.seed).generate_state(2)
     world = AbstractBlocksWorld(config.n_blocks, config.n_features, seed=int(world_seed))
     bank = PredictorBank(
@@ -99,6 +96,36 @@ def run(
         n_states=world.top + 1,
     )
     strategy = make_strategy(config.method, bank, world.top, config.gamma, seed=int(agent_seed))
+    return world, bank, strategy
+
+
+def run(
+    config: RunConfig,
+    progress: Callable[[int], object] | None = None,
+    progress_every: int = 100,
+    engine: str = "auto",
+) -> RunResult:
+    """One run of `config.method` in the abstract world; deterministic for `config.seed`.
+
+    progress(k) is called after every `progress_every` steps with k, the steps just done.
+    engine: "reference" steps the NumPy Explorer; "fast" the compiled loop of core.fastpath
+    (same trajectory; q1, q10, conf and random only); "auto" the fast one where it exists.
+    """
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
+    if progress_every < 1:
+        raise ValueError(f"progress_every must be >= 1, got {progress_every}")
+    world, bank, strategy = build_run(config)
+    fast = None
+    if engine != "reference":
+        from . import fastpath  # numba: imported only when a run uses it
+
+        if config.method in fastpath.FAST_METHODS and fastpath.supports(world, bank):
+            fast = fastpath.FastRun(
+                config.method, world, bank, strategy.rng, config.gamma, config.steps
+            )
+        elif engine == "fast":
+            raise ValueError(f"no fast path for method {config.method!r}")
     explorer = Explorer(world, bank, strategy)
     heights = np.array(world.learned_heights)
     true_margin = np.vstack([world.true_margin, np.zeros((1, world.n_actions))])
@@ -111,7 +138,8 @@ def run(
     record_steps = np.unique(
         np.r_[0, np.arange(config.record_every, n + 1, config.record_every), n]
     )
-    kl = np.empty((len(record_steps), len(heights)))
+    # Learned margins at every recorded step; the KL of all of them is computed at the end.
+    recorded = np.empty((len(record_steps), len(heights), world.n_actions))
     snap_steps = np.array(sorted({s for s in config.snapshots if 0 < s <= n} | {n}))
     snap_margin = np.empty((len(snap_steps), *bank.margin.shape))
     snap_chi = np.empty_like(snap_margin)
@@ -119,27 +147,43 @@ def run(
 
     record_at = {int(s): i for i, s in enumerate(record_steps)}
     snap_at = {int(s): i for i, s in enumerate(snap_steps)}
-    kl[0] = model_kl(true_margin[heights], bank.margin[heights])
-    step = explorer.step
-    start = time.perf_counter()
-    for t in range(n):
-        result = step()
-        states[t], actions[t], modes[t], labels[t] = (
-            result.state,
-            result.action,
-            result.mode,
-            result.label,
-        )
-        done = t + 1
+    recorded[0] = bank.margin[heights]
+
+    def observe(done: int) -> None:
         if done in record_at:
-            kl[record_at[done]] = model_kl(true_margin[heights], bank.margin[heights])
+            recorded[record_at[done]] = bank.margin[heights]
         if done in snap_at:
             i = snap_at[done]
             snap_margin[i], snap_chi[i], snap_unknown[i] = bank.margin, bank.chi, bank.unknown
         if progress is not None and (done % progress_every == 0 or done == n):
             progress(done % progress_every or progress_every)
+
+    start = time.perf_counter()
+    if fast is not None:
+        # Compiled chunks between the steps where something is recorded or reported.
+        stops = set(record_at) | set(snap_at) | {n}
+        if progress is not None:
+            stops |= set(range(progress_every, n + 1, progress_every))
+        for done in sorted(s for s in stops if s > 0):
+            fast.advance(done - fast.done)
+            observe(done)
+        fast.sync()
+        states, actions, modes, labels = fast.states, fast.actions, fast.modes, fast.labels
+        plan_calls = fast.plan_calls
+    else:
+        step = explorer.step
+        for t in range(n):
+            result = step()
+            states[t], actions[t], modes[t], labels[t] = (
+                result.state,
+                result.action,
+                result.mode,
+                result.label,
+            )
+            observe(t + 1)
+        plan_calls = getattr(getattr(strategy, "planner", None), "calls", 0)
+    kl = model_kl(true_margin[heights], recorded)  # (records, heights)
     wall = time.perf_counter() - start
-    plan_calls = getattr(getattr(strategy, "planner", None), "calls", 0)
     return RunResult(
         config,
         states,
@@ -179,6 +223,10 @@ def run_many(
             if progress:
                 progress(results[i])
     else:
+        if any(c.method in FAST_METHOD_NAMES for c in configs):
+            from .fastpath import warm_up
+
+            warm_up()  # load (or compile) once here: forked workers inherit the machine code
         with ProcessPoolExecutor(max_workers=jobs) as pool:
             futures = {pool.submit(_run_quiet, c): i for i, c in enumerate(configs)}
             for future in as_completed(futures):

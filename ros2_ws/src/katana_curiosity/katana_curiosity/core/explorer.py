@@ -14,9 +14,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from .environment import Environment, Outcome, PlacementUnavailable, Setting, ShuffledSetting
 from .planner import Planner
 from .predictors import PredictorBank
-from .world import PlacementUnavailable, Setting, ShuffledSetting, World
 
 QUERY, PLAN, RANDOM = 0, 1, 2
 MODE_NAMES = {QUERY: "query", PLAN: "plan", RANDOM: "random"}
@@ -41,6 +41,7 @@ class Step:
     margin_before: float
     chi_before: float
     weights_before: np.ndarray | None = None  # only when the explorer records weights
+    record: object = None  # the environment's record of the execution (Outcome.record)
 
 
 def first_unknown(bank: PredictorBank, setting: Setting | ShuffledSetting) -> Choice | None:
@@ -201,7 +202,7 @@ class Explorer:
 
     def __init__(
         self,
-        world: World,
+        world: Environment,
         bank: PredictorBank,
         strategy: Strategy,
         max_alternatives: int = 20,
@@ -217,27 +218,39 @@ class Explorer:
         if len(setting) == 0:
             raise PlacementUnavailable("the setting offers no instance")
         choice = self.strategy.choose(setting, self.steps)
-        label, choice = self._execute(setting, choice)
+        (label, record), choice = self._execute(setting, choice)
         s, a = choice.state, choice.action
         margin, chi = float(self.bank.margin[s, a]), float(self.bank.chi[s, a])
         weights = self.bank.weights(s) if self.record_weights and self.bank.slot[s] >= 0 else None
         self.bank.update(s, a, label)
         self.steps += 1
-        return Step(s, a, choice.mode, label, margin, chi, weights)
+        return Step(s, a, choice.mode, label, margin, chi, weights, record)
 
-    def _execute(self, setting: Setting | ShuffledSetting, choice: Choice) -> tuple[int, Choice]:
+    def _run(self, choice: Choice) -> tuple[int, object]:
+        """(label, record) of executing `choice`; a bare label has no record."""
+        result = self.world.execute(choice.state, choice.action, choice.index)
+        if isinstance(result, Outcome):
+            return result.label, result.record
+        return result, None
+
+    def _execute(
+        self, setting: Setting | ShuffledSetting, choice: Choice
+    ) -> tuple[tuple[int, object], Choice]:
         try:
-            return self.world.execute(choice.state, choice.action, choice.index), choice
+            return self._run(choice), choice
         except PlacementUnavailable:
             if choice.mode != PLAN:
                 raise
         # A planned pair the world cannot realise: try the next best ones.
         for alternative in self.strategy.alternatives(setting, choice)[: self.max_alternatives]:
             try:
-                label = self.world.execute(alternative.state, alternative.action, alternative.index)
-                return label, alternative
+                return self._run(alternative), alternative
             except PlacementUnavailable:
                 continue
         raise PlacementUnavailable(
             f"no placement realises ({choice.state}, {choice.action}) or any alternative"
         )
+
+
+# The related-work baselines (lp, variance, rmax, egreedy) register themselves in STRATEGIES.
+from . import strategies_baselines  # noqa: E402, F401

@@ -13,6 +13,7 @@ each LSTDQ solve weighs every state-action pair once with its exact expected nex
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Protocol
@@ -20,6 +21,16 @@ from typing import Protocol
 import numpy as np
 
 from .predictors import PredictorBank
+
+# Values closer than this are ties. Floating-point noise (a BLAS kernel summing two identical
+# rows in different orders) must not decide between equally good actions or heights; ties go to
+# the first action and to the highest height, in the NumPy planner and the compiled fast path.
+TIE_TOLERANCE = 1e-12
+
+REWARD_KINDS = ("query", "confidence", "variance")
+
+# A phantom reward computed by a strategy: rows of states in, R[rows] (len(rows), n_actions) out.
+RewardTable = Callable[[np.ndarray], np.ndarray]
 
 
 @dataclass
@@ -78,7 +89,9 @@ def transition_model(bank: PredictorBank, top: int, rows: np.ndarray | None = No
 def phantom_rewards(
     bank: PredictorBank, top: int, kind: str = "query", rows: np.ndarray | None = None
 ) -> np.ndarray:
-    """R[s, a]: 1 where the query condition holds ("query"), or chi itself ("confidence")."""
+    """R[s, a]: 1 where the query condition holds ("query"), chi itself ("confidence"), or the
+    predictive variance of the +-1 label, 1 - margin^2 ("variance", Hester and Stone 2012 style:
+    large for a noisy outcome however confident the model is)."""
     rows = np.arange(top + 1) if rows is None else np.asarray(rows)
     learned = (bank.slot[rows] >= 0) & (rows < top)
     r = np.zeros((len(rows), bank.n_actions))
@@ -86,8 +99,10 @@ def phantom_rewards(
         r[learned] = bank.unknown[rows[learned]]
     elif kind == "confidence":
         r[learned] = bank.chi[rows[learned]]
+    elif kind == "variance":
+        r[learned] = 1.0 - clip_margin(bank.margin[rows[learned]]) ** 2
     else:
-        raise ValueError(f"unknown reward kind {kind!r}: use 'query' or 'confidence'")
+        raise ValueError(f"unknown reward kind {kind!r}: use one of {', '.join(REWARD_KINDS)}")
     return r
 
 
@@ -182,6 +197,11 @@ def evaluate_tabular(mdp: HeightMDP, policy: np.ndarray) -> np.ndarray:
     return mdp.rewards + mdp.gamma * (mdp.transitions @ v)
 
 
+def first_best(q: np.ndarray) -> np.ndarray:
+    """Per row, the first action within TIE_TOLERANCE of the row's maximum."""
+    return np.argmax(q >= q.max(axis=-1, keepdims=True) - TIE_TOLERANCE, axis=-1)
+
+
 @dataclass
 class LSPIResult:
     q: np.ndarray
@@ -218,8 +238,8 @@ def lspi(
         if feasible is not None:
             q = np.where(feasible, q, -np.inf)
         # Keep the current action on ties so that policy iteration terminates.
-        best = q.argmax(axis=1)
-        keep = q[np.arange(ns), policy] >= q[np.arange(ns), best] - 1e-12
+        best = first_best(q)
+        keep = q[np.arange(ns), policy] >= q[np.arange(ns), best] - TIE_TOLERANCE
         new_policy = np.where(keep, policy, best)
         if np.array_equal(new_policy, policy):
             return LSPIResult(q, policy, iteration)
@@ -252,16 +272,20 @@ class Planner:
         bank: PredictorBank,
         top: int,
         gamma: float = 0.95,
-        reward: str = "query",
+        reward: str | RewardTable = "query",
         basis: Basis | None = None,
         feasible: np.ndarray | None = None,
     ) -> None:
+        """reward: a kind of REWARD_KINDS, or a RewardTable (re-read for every row at each solve,
+        since a strategy's own reward may change without the bank changing)."""
         if not 0.0 <= gamma < 1.0:
             raise ValueError(f"gamma must be in [0, 1), got {gamma}")
         if not 1 <= top < bank.n_states:
             raise ValueError(f"top must be in [1, {bank.n_states - 1}], got {top}")
-        if reward not in ("query", "confidence"):
-            raise ValueError(f"unknown reward kind {reward!r}: use 'query' or 'confidence'")
+        if not callable(reward) and reward not in REWARD_KINDS:
+            raise ValueError(
+                f"unknown reward kind {reward!r}: use one of {', '.join(REWARD_KINDS)}"
+            )
         self.bank, self.top, self.gamma, self.reward, self.basis = bank, top, gamma, reward, basis
         if feasible is not None:
             feasible = np.asarray(feasible, dtype=bool)
@@ -281,10 +305,22 @@ class Planner:
     def solve(self) -> np.ndarray:
         """Re-plan on the current model; only the MDP rows of heights that changed are rebuilt."""
         rows = np.flatnonzero(self.bank.version[: self.top + 1] != self._seen)
+        custom = callable(self.reward)
         if self._mdp is None:
-            self._mdp = build_mdp(self.bank, self.top, self.gamma, self.reward)
+            self._mdp = HeightMDP(
+                transition_model(self.bank, self.top),
+                np.zeros((self.top + 1, self.bank.n_actions)),
+                self.gamma,
+            )
+            rows = np.arange(self.top + 1)
         elif len(rows):
             self._mdp.transitions[rows] = transition_model(self.bank, self.top, rows)
+        if custom:
+            every = np.arange(self.top + 1)
+            rewards = np.array(self.reward(every), dtype=float)
+            rewards[self.top] = 0.0  # absorbing: nothing to gain there
+            self._mdp.rewards[:] = rewards
+        elif len(rows):
             self._mdp.rewards[rows] = phantom_rewards(self.bank, self.top, self.reward, rows)
         self._seen = self.bank.version[: self.top + 1].copy()
         if self.feasible is not None:
@@ -300,5 +336,6 @@ class Planner:
         available = np.asarray(available)
         values = q[available].max(axis=1)
         # Last maximum: among equally valuable heights, the higher one builds towards the unknown.
-        s = int(available[len(values) - 1 - int(np.argmax(values[::-1]))])
-        return s, int(np.argmax(q[s]))
+        near = values >= values.max() - TIE_TOLERANCE
+        s = int(available[len(values) - 1 - int(np.argmax(near[::-1]))])
+        return s, int(first_best(q[s]))

@@ -11,7 +11,7 @@ one height, and a query is a table look-up. Arbitrary feature vectors are still 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,6 +32,10 @@ def exploration_horizon(examples: np.ndarray | int) -> np.ndarray | float:
     untrained predictor has h = log 2 > 0 and its first instance is unknown.
     """
     return np.log(2.0 + np.asarray(examples, dtype=float))
+
+
+# Called by PredictorBank.update for every learned example: (state, action, label, margin before).
+UpdateListener = Callable[[int, int, float, float], None]
 
 
 @dataclass(frozen=True)
@@ -96,6 +100,8 @@ class PredictorBank:
         self.unknown = np.zeros((self.n_states, self.n_actions), dtype=bool)
         # Bumped whenever a state's row changes, so that planners rebuild only what changed.
         self.version = np.zeros(self.n_states, dtype=np.int64)
+        # Strategies that learn from outcomes themselves (learning progress, counts) listen here.
+        self.listeners: list[UpdateListener] = []
         for s in self.heights:
             self._refresh(int(s))
 
@@ -112,6 +118,8 @@ class PredictorBank:
         b = a_inv @ x
         c = float(x @ b)
         margin = float(w @ x)
+        for listener in self.listeners:
+            listener(state, action, label, margin)
         if abs(margin) > 1.0:  # projection step: bring the margin on x back to +-1
             w -= math.copysign((abs(margin) - 1.0) / c, margin) * b
             margin = math.copysign(1.0, margin)

@@ -1,17 +1,24 @@
 """What a robot run keeps on disk: the experience log, learner checkpoints, and resuming.
 
-The log (JSON lines) is the record of truth: each experiment is appended, flushed and fsynced
-before the next one starts. Checkpoints (.npz, no pickle) are a convenience for users and a
-cross-check; on restart the learner is rebuilt by replaying the log, which is exact because the
-RLS update is a deterministic function of the example sequence.
+The log (JSON lines, one `ExperimentRecord` each) is the record of truth: each experiment is
+appended, flushed and fsynced before the next one starts. Checkpoints (.npz, no pickle) are a
+convenience for users and a cross-check; on restart the learner is rebuilt by replaying the
+log, which is exact because the RLS update is a deterministic function of the example sequence.
+
+Reading never loses a valid record and never rewrites anything silently: a line cut by a crash
+mid-write (the last line, without its newline) is moved aside to `<log>.corrupt` and reported;
+any other bad line stops the reading with one message naming the file, the line and the field.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -19,41 +26,240 @@ from .predictors import PredictorBank
 
 LOG_NAME = "experience.jsonl"
 CHECKPOINT_NAME = "learner.npz"
+MODES = ("query", "plan", "random")
+
+
+class LogError(ValueError):
+    """A record of the experience log is invalid; the message names file, line and field."""
+
+
+class RecordError(ValueError):
+    """One record is invalid: `field_name` and why."""
+
+    def __init__(self, field_name: str, reason: str) -> None:
+        super().__init__(f"field '{field_name}': {reason}")
+        self.field_name = field_name
+
+
+@dataclass(frozen=True)
+class InstanceRecord:
+    """The fovea instance that was executed (pixel position, the five bits, the placement)."""
+
+    pixel_u: float
+    pixel_v: float
+    bits: list[bool]
+    features: list[float]
+    support_ids: list[str]
+    placement: list[float]  # x, y, z of the placement point in the world frame, m
+
+
+@dataclass(frozen=True)
+class ExperimentRecord:
+    """One experiment as the log keeps it (written by the robot loop, read by `replay`)."""
+
+    index: int  # 0-based, contiguous over the whole run
+    state: int  # height placed upon
+    action: int  # 1-based action (bits on + 1)
+    label: int  # +1 stable, -1 fell
+    mode: str  # query, plan or random
+    setting: int = 0  # the paper's setting counter i (settings observed, drops included)
+    available: list[int] = field(default_factory=list)  # states the setting offered
+    moved_block: str = ""
+    attempts: int = 1  # pick-and-place goals sent (missed grasps are retried)
+    instance: InstanceRecord | None = None
+    margin_before: float = 0.0
+    confidence_before: float = 0.0
+    weights_before: list[float] = field(default_factory=list)
+    weights_after: list[float] = field(default_factory=list)
+    stage_s: dict[str, float] = field(default_factory=dict)  # wall seconds per stage
+    dropped_before: dict[str, int] = field(default_factory=dict)  # attempts dropped, by reason
+    wall_time: float = 0.0  # seconds since the epoch when it was logged
+
+    @property
+    def action_index(self) -> int:
+        return self.action - 1
+
+    def to_json(self) -> str:
+        data = asdict(self)
+        data["action_index"] = self.action_index  # for readers of the raw log
+        return json.dumps(data, separators=(",", ":"), allow_nan=False)
+
+    @classmethod
+    def from_mapping(cls, data: Any) -> ExperimentRecord:
+        """Validate one parsed JSON record; RecordError names the first bad field."""
+        if not isinstance(data, Mapping):
+            raise RecordError("(record)", "is not a JSON object")
+        known = {f.name for f in fields(cls)} | {"action_index"}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise RecordError(unknown[0], "is not a field of an experiment record")
+        for name in ("index", "state", "action", "label", "mode"):
+            if name not in data:
+                raise RecordError(name, "is missing")
+        values = {
+            "index": _int(data, "index", 0),
+            "state": _int(data, "state", 0),
+            "action": _int(data, "action", 1),
+            "label": _int(data, "label"),
+            "mode": data["mode"],
+            "setting": _int(data, "setting", 0, default=0),
+            "available": [_int({"available": v}, "available", 0) for v in
+                          _list(data, "available")],
+            "moved_block": _str(data, "moved_block"),
+            "attempts": _int(data, "attempts", 0, default=1),
+            "instance": _instance(data.get("instance")),
+            "margin_before": _float(data, "margin_before"),
+            "confidence_before": _float(data, "confidence_before"),
+            "weights_before": _floats(data, "weights_before"),
+            "weights_after": _floats(data, "weights_after"),
+            "stage_s": _float_map(data, "stage_s"),
+            "dropped_before": _count_map(data, "dropped_before"),
+            "wall_time": _float(data, "wall_time"),
+        }
+        if values["label"] not in (-1, 1):
+            raise RecordError("label", f"{values['label']!r} is not +1 or -1")
+        if values["mode"] not in MODES:
+            raise RecordError("mode", f"{values['mode']!r} is not one of {', '.join(MODES)}")
+        if "action_index" in data and data["action_index"] != values["action"] - 1:
+            raise RecordError("action_index", f"{data['action_index']!r} is not action - 1")
+        return cls(**values)
+
+
+# -- field checks --------------------------------------------------------------------------
+
+
+def _int(data: Mapping, name: str, low: int | None = None, default: int | None = None) -> int:
+    value = data.get(name, default)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise RecordError(name, f"{value!r} is not an integer")
+    if low is not None and value < low:
+        raise RecordError(name, f"{value!r} is below {low}")
+    return value
+
+
+def _float(data: Mapping, name: str) -> float:
+    value = data.get(name, 0.0)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise RecordError(name, f"{value!r} is not a finite number")
+    return float(value)
+
+
+def _str(data: Mapping, name: str) -> str:
+    value = data.get(name, "")
+    if not isinstance(value, str):
+        raise RecordError(name, f"{value!r} is not text")
+    return value
+
+
+def _list(data: Mapping, name: str) -> list:
+    value = data.get(name, [])
+    if not isinstance(value, list):
+        raise RecordError(name, f"{value!r} is not a list")
+    return value
+
+
+def _floats(data: Mapping, name: str) -> list[float]:
+    return [_float({name: v}, name) for v in _list(data, name)]
+
+
+def _float_map(data: Mapping, name: str) -> dict[str, float]:
+    value = data.get(name, {})
+    if not isinstance(value, Mapping):
+        raise RecordError(name, f"{value!r} is not an object")
+    return {str(k): _float({f"{name}.{k}": v}, f"{name}.{k}") for k, v in value.items()}
+
+
+def _count_map(data: Mapping, name: str) -> dict[str, int]:
+    value = data.get(name, {})
+    if not isinstance(value, Mapping):
+        raise RecordError(name, f"{value!r} is not an object")
+    return {str(k): _int({f"{name}.{k}": v}, f"{name}.{k}", 0) for k, v in value.items()}
+
+
+def _instance(value: Any) -> InstanceRecord | None:
+    if value is None:
+        return None
+    if not isinstance(value, Mapping):
+        raise RecordError("instance", f"{value!r} is not an object")
+    try:
+        bits = _list(value, "bits")
+        if not all(isinstance(b, bool) for b in bits):
+            raise RecordError("bits", "entries must be true or false")
+        ids = _list(value, "support_ids")
+        if not all(isinstance(i, str) for i in ids):
+            raise RecordError("support_ids", "entries must be text")
+        placement = _floats(value, "placement")
+        if len(placement) != 3:
+            raise RecordError("placement", f"needs x, y, z, got {len(placement)} values")
+        return InstanceRecord(_float(value, "pixel_u"), _float(value, "pixel_v"), bits,
+                              _floats(value, "features"), ids, placement)
+    except RecordError as err:
+        raise RecordError(f"instance.{err.field_name}", str(err).split(": ", 1)[1]) from None
+
+
+# -- the log -------------------------------------------------------------------------------
 
 
 class ExperienceLog:
-    """Append-only JSON-lines file that survives a crash at any point."""
+    """Append-only JSON-lines file of ExperimentRecords that survives a crash at any point."""
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.dropped_partial_line = False
-        self.records = self._read_and_repair()
+        #: set when a torn last line was moved aside: where to, and how many bytes
+        self.moved_aside: tuple[Path, int] | None = None
+        self.records: list[ExperimentRecord] = self._read()
 
-    def _read_and_repair(self) -> list[dict]:
+    def _read(self) -> list[ExperimentRecord]:
         if not self.path.exists():
             return []
         data = self.path.read_bytes()
-        records, good = [], 0
-        for line in data.splitlines(keepends=True):
-            if not line.endswith(b"\n"):
-                break  # a line cut by a crash mid-write: not recorded, so not counted
-            try:
-                records.append(json.loads(line))
-            except json.JSONDecodeError:
+        records: list[ExperimentRecord] = []
+        good = 0
+        lines = data.splitlines(keepends=True)
+        for number, line in enumerate(lines, start=1):
+            if not line.endswith(b"\n") and number == len(lines):
+                self._move_aside(data, good)  # cut by a crash mid-write: never recorded
                 break
+            where = f"{self.path}:{number}"
+            try:
+                parsed = json.loads(line)
+            except ValueError as exc:  # JSONDecodeError and UnicodeDecodeError
+                detail = getattr(exc, "msg", None) or type(exc).__name__
+                raise LogError(f"{where}: field '(record)': not a JSON record ({detail})"
+                               ) from None
+            try:
+                record = ExperimentRecord.from_mapping(parsed)
+            except RecordError as err:
+                raise LogError(f"{where}: {err}") from None
+            if record.index != len(records):
+                what = "a duplicate" if record.index < len(records) else "a gap"
+                raise LogError(f"{where}: field 'index': {record.index} is {what} "
+                               f"(expected {len(records)})")
+            records.append(record)
             good += len(line)
-        if good < len(data):
-            self.dropped_partial_line = True
-            with open(self.path, "r+b") as f:
-                f.truncate(good)
         return records
+
+    def _move_aside(self, data: bytes, good: int) -> None:
+        aside = self.path.with_name(self.path.name + ".corrupt")
+        n = 1
+        while aside.exists():
+            n += 1
+            aside = self.path.with_name(f"{self.path.name}.corrupt.{n}")
+        aside.write_bytes(data[good:])
+        with open(self.path, "r+b") as f:
+            f.truncate(good)
+            os.fsync(f.fileno())
+        self.moved_aside = (aside, len(data) - good)
 
     def __len__(self) -> int:
         return len(self.records)
 
-    def append(self, record: dict) -> None:
-        line = json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n"
+    def append(self, record: ExperimentRecord) -> None:
+        """Write, flush and fsync one record; OSError (disk full, folder gone) propagates."""
+        if record.index != len(self.records):
+            raise ValueError(f"record index {record.index}, expected {len(self.records)}")
+        line = record.to_json() + "\n"
         with open(self.path, "a", encoding="utf-8") as f:
             f.write(line)
             f.flush()
@@ -79,10 +285,21 @@ def load_checkpoint(path: Path) -> tuple[PredictorBank, int]:
     return PredictorBank.from_state_dict(arrays), int(arrays["experiments"])
 
 
-def replay(bank: PredictorBank, records: Iterable[dict]) -> int:
-    """Learn every logged experiment again, in order; returns how many."""
-    n = 0
+def replay(bank: PredictorBank, records: Iterable[ExperimentRecord], source: str = "log") -> int:
+    """Learn every logged experiment again, in order; returns how many.
+
+    LogError (naming `source`, the line and the field) when a record's state is not one the
+    bank learns or its action is not one of the bank's actions; nothing is learned then.
+    """
+    records = list(records)
+    heights = {h for h in range(len(bank.slot)) if bank.slot[h] >= 0}
+    for number, record in enumerate(records, start=1):
+        if record.state not in heights:
+            raise LogError(f"{source}:{number}: field 'state': {record.state} is not one of "
+                           f"the learned heights {sorted(heights)}")
+        if not 0 <= record.action_index < bank.n_actions:
+            raise LogError(f"{source}:{number}: field 'action': {record.action} is not in "
+                           f"1..{bank.n_actions}")
     for record in records:
-        bank.update(int(record["state"]), int(record["action_index"]), float(record["label"]))
-        n += 1
-    return n
+        bank.update(record.state, record.action_index, float(record.label))
+    return len(records)

@@ -16,7 +16,7 @@ observed again and the choice made anew; the number of placements is bounded.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -141,15 +141,19 @@ class SkillWorld:
         raise NotImplementedError
 
     def place(self, state: int, action: int) -> int:
-        """Place a block on a stack of `state` with `action`; return the label (+1 / -1)."""
+        """Place a block on a stack of `state` with `action`; return the label (+1 / -1), or
+        0 when no placement was made (the arm lost the block on the way): the skill observes
+        the setting again and chooses anew, within the same bound."""
         raise NotImplementedError
 
     def highest_stack(self) -> int:
         raise NotImplementedError
 
 
-def build_stack(world: SkillWorld, skill: StackingSkill, max_placements: int) -> SkillResult:
-    """Choose, place, observe, choose again, until the target height stands or the bound."""
+def build_stack(world: SkillWorld, skill: StackingSkill, max_placements: int,
+                on_outcome: Callable[[SkillOutcome], None] | None = None) -> SkillResult:
+    """Choose, place, observe, choose again, until the target height stands or the bound.
+    `on_outcome` hears of every placement as it is judged (the action's feedback)."""
     if max_placements < 1:
         raise ValueError(f"max_placements must be >= 1, got {max_placements}")
     placements: list[SkillOutcome] = []
@@ -161,7 +165,11 @@ def build_stack(world: SkillWorld, skill: StackingSkill, max_placements: int) ->
         if choice is None:
             return SkillResult(False, height, placements, "no placement offered")
         label = world.place(choice.state, choice.action)
+        if label == 0:
+            continue
         placements.append(SkillOutcome(choice, label, world.highest_stack()))
+        if on_outcome is not None:
+            on_outcome(placements[-1])
     height = world.highest_stack()
     reached = height >= skill.target
     return SkillResult(

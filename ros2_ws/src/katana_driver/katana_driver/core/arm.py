@@ -4,6 +4,13 @@ All serial/TCP I/O happens in this thread, so a ROS executor never waits on the 
 thread polls positions at ``poll_rate`` (status flags too while something moves, otherwise
 every ``status_every`` polls), runs posted jobs between polls, streams trajectory segments
 into the controller's move buffer a little ahead of time, and reconnects after a lost link.
+
+Segments are never re-sent. When a segment's reply is lost (transport.NoReply) the stream
+stops sending and reads the controller's status when that segment should be playing: motors
+moving means it was taken (go on), motors done means it was not (the arm has stopped at the
+end of the previous segment: the stream ends with an error and the goal is aborted). Before
+the motion starts, a lost reply is resolved by flushing the move buffers (harmless twice) and
+streaming again from the first segment. After a lost link the arm is frozen on reconnection.
 """
 
 from __future__ import annotations
@@ -18,9 +25,9 @@ from typing import Any, TypeVar
 
 from . import protocol as p
 from .client import KatanaClient
-from .encoders import EncoderModel
+from .encoders import GRIPPER_OPEN_RAD, EncoderModel
 from .splines import SplinePlan, hold_segment
-from .transport import LinkDown, Transport, TransportError
+from .transport import LinkDown, NoReply, Transport, TransportError
 
 T = TypeVar("T")
 Log = Callable[[str, str], None]  # (level, message); level: debug, info, warn, error
@@ -28,6 +35,12 @@ Log = Callable[[str, str], None]  # (level, message); level: debug, info, warn, 
 START_BUFFER_TICKS = 40  # queue this much motion before starting (as the ROS 1 driver did)
 LOOKAHEAD_S = 1.5  # keep segments starting within this horizon in the move buffer
 MAX_IN_BUFFER = 12  # of the assumed 16-segment move buffer
+CONFIRM_MARGIN_S = 0.06  # read the status this long after an unconfirmed segment should start
+MAX_RESTARTS = 3  # re-streams (after a flush) of a trajectory that has not started moving
+START_SLACK_ENC = 5  # encoders a motor may be from the plan's start for a re-stream
+#: after calibration every arm motor backs off its stop by this much, as the KNI does, so the
+#: arm rests inside the joint limits (at the stop, rounding puts it a hair outside them)
+CALIBRATION_BACKOFF_RAD = 0.01
 
 
 @dataclass
@@ -48,17 +61,29 @@ class Stream:
 
     plan: SplinePlan
     gripper_enc: int
-    sent: int = 0
+    sent: int = 0  # segments the controller is known to hold
     started_at: float | None = None  # monotonic time at which motion was started
     cancelled: bool = False
     started: Future = field(default_factory=Future)  # result: started_at
     finished_sending: Future = field(default_factory=Future)
+    queue_end: float = 0.0  # estimated monotonic time at which the controller's queue runs out
+    ends: list[float] = field(default_factory=list)  # estimated end of each segment taken
+    unconfirmed: tuple[int, int, float, float] | None = None  # index, activity, sent, check at
+    restarts: int = 0
+    lost_replies: int = 0
 
-    def start_time_of(self, index: int) -> float:
-        return self.plan.start_ticks[index] * p.TICK_S
+    def duration_of(self, index: int) -> float:
+        return self.plan.segments[index][0].duration * p.TICK_S
 
-    def end_time_of(self, index: int) -> float:
-        return (self.plan.start_ticks[index] + self.plan.segments[index][0].duration) * p.TICK_S
+    @property
+    def lag_s(self) -> float:
+        """How much later than planned the controller will finish what it holds (>= 0)."""
+        if self.started_at is None or self.sent == 0:
+            return 0.0
+        planned = self.started_at + (
+            self.plan.start_ticks[self.sent - 1] * p.TICK_S + self.duration_of(self.sent - 1)
+        )
+        return max(0.0, self.queue_end - planned)
 
 
 class NotConnected(TransportError):
@@ -100,6 +125,7 @@ class ArmWorker:
         self.polls = 0
         self.link_losses = 0
         self._calibrated_once = False
+        self._freeze_on_connect = False
         self._jobs: queue.Queue = queue.Queue()
         self._stop = threading.Event()
         self._cond = threading.Condition()
@@ -206,10 +232,22 @@ class ArmWorker:
                     self._stream_step()
                 now = time.monotonic()
                 if now >= next_poll:
-                    next_poll = max(next_poll + self.period, now)
+                    # a fixed rate: a late poll is made up by the next, unless far behind
+                    next_poll += self.period
+                    if now - next_poll > 3.0 * self.period:
+                        next_poll = now
                     self._poll()
             except TransportError as exc:
                 self._link_lost(str(exc))
+            except p.ControllerError as exc:
+                # A refused segment (an H sent in the moment after a collision stopped the arm,
+                # before a poll saw it). Uncaught, this ended the worker thread: no joint state
+                # ever after (the collision test's old flake).
+                self._log("error", f"the controller refused a trajectory command: {exc}")
+                self._end_stream(RuntimeError(f"the controller refused the trajectory: {exc}"))
+            except Exception as exc:  # noqa: BLE001 - a bug must not end the arm's only thread
+                self._log("error", f"arm worker error: {exc!r}")
+                self._end_stream(RuntimeError(f"driver error: {exc!r}"))
         self._fail_pending(NotConnected("the driver is shutting down"))
 
     def _run_job(self, fn: Callable[[KatanaClient], Any], future: Future) -> None:
@@ -246,6 +284,15 @@ class ArmWorker:
             self.link_error = f"set-up failed: {exc}"
             self._log("error", self.link_error)
             return False
+        if self._freeze_on_connect:  # lost mid-motion: stop what the buffer may still play
+            try:
+                self._freeze(self.client)
+                self._log("warn", "reconnected: froze the arm (the link was lost)")
+            except (TransportError, p.ControllerError) as exc:
+                self.transport.close()
+                self.link_error = f"could not freeze the arm after reconnecting: {exc}"
+                self._log("error", self.link_error)
+                return False
         self.connected = True
         self.link_error = ""
         return True
@@ -285,11 +332,36 @@ class ArmWorker:
             if all(s not in (p.STATUS_CALIBRATING, p.STATUS_OFF) for s in self._status):
                 self.calibrated = True
                 self._log("info", "calibration done")
+                self._back_off_stops()
                 return
         raise TransportError(
             f"calibration did not finish within {self.calibration_timeout:.0f} s "
             f"(status flags {self._status})"
         )
+
+    def _back_off_stops(self) -> None:
+        """Move every motor off its calibration stop into the joint limits (gripper: open)."""
+        targets = [
+            int(round(self.model.angle_to_encoder(i + 1, angle)))
+            for i, angle in enumerate(self.model.calibration_pose(CALIBRATION_BACKOFF_RAD))
+        ]
+        targets.append(int(round(self.model.gripper_angle_to_encoder(GRIPPER_OPEN_RAD))))
+        for motor, enc in enumerate(targets, start=1):
+            try:
+                self.client.move_motor(motor, enc)
+            except NoReply:  # an absolute target: if lost, the state read below shows it
+                pass
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and not self._stop.is_set():
+            self._stop.wait(0.1)
+            self._poll(force_status=True)
+            encoders = self._state.encoders
+            if all(abs(e - t) <= 2 for e, t in zip(encoders, targets, strict=True)):
+                return
+            for motor, (e, t) in enumerate(zip(encoders, targets, strict=True), start=1):
+                if abs(e - t) > 2 and self._status[motor - 1] == p.STATUS_HOLDING:
+                    self.client.move_motor(motor, t)  # known not taken (holding elsewhere)
+        raise TransportError("the motors did not back off their calibration stops in 10 s")
 
     def _poll(self, force_status: bool = False) -> None:
         encoders = self.client.read_positions()
@@ -340,6 +412,7 @@ class ArmWorker:
         self.transport.close()
         self.connected = False
         self.link_losses += 1
+        self._freeze_on_connect = True
         self.link_error = f"lost connection to the Katana controller ({message})"
         self._log("error", f"{self.link_error}; reconnecting every {self.reconnect_period:g} s")
         self._fail_pending(LinkDown(self.link_error))
@@ -371,8 +444,14 @@ class ArmWorker:
             self.collision_message = ""
             self._status = client.read_status()
         client.flush_buffers()
+        # Motor 6 rides along in every H row as a hold segment: hold it where it is now (a
+        # position cached before a finishing gripper move made the fingers jump back).
+        stream.gripper_enc = client.read_positions()[5]
         self._stream = stream
-        self._stream_step()
+        try:
+            self._stream_step()
+        except p.ControllerError as exc:
+            self._end_stream(RuntimeError(f"the controller refused the trajectory: {exc}"))
 
     def _stream_step(self) -> None:
         stream = self._stream
@@ -381,14 +460,16 @@ class ArmWorker:
         if stream.cancelled:
             self._end_stream(None)
             return
+        if stream.unconfirmed is not None and not self._confirm(stream):
+            return
         plan = stream.plan
         n = len(plan.segments)
-        while stream.sent < n:
+        while stream.sent < n and self._stream is stream:
             i = stream.sent
+            now = time.monotonic()
             if stream.started_at is not None:
-                elapsed = time.monotonic() - stream.started_at
-                done = sum(1 for k in range(i) if stream.end_time_of(k) <= elapsed)
-                if i - done >= MAX_IN_BUFFER or stream.start_time_of(i) - elapsed > LOOKAHEAD_S:
+                in_buffer = sum(1 for e in stream.ends if e > now)
+                if in_buffer >= MAX_IN_BUFFER or stream.queue_end - now > LOOKAHEAD_S:
                     return
             if i == n - 1:
                 activity = p.ACTIVITY_LAST
@@ -398,12 +479,82 @@ class ArmWorker:
                 activity = p.ACTIVITY_START
             row = plan.segments[i]
             gripper = hold_segment(stream.gripper_enc, row[0].duration)
-            self.client.send_spline_all([*row, gripper], activity)
-            stream.sent += 1
-            if activity != p.ACTIVITY_QUEUE and stream.started_at is None:
-                stream.started_at = time.monotonic()
-                stream.started.set_result(stream.started_at)
-        self._end_stream(None)
+            sent_at = time.monotonic()
+            try:
+                self.client.send_spline_all([*row, gripper], activity)
+            except NoReply as exc:
+                stream.lost_replies += 1
+                begins = max(stream.queue_end, sent_at) if stream.started_at else sent_at
+                stream.unconfirmed = (i, activity, sent_at, begins + CONFIRM_MARGIN_S)
+                self._log("warn", f"segment {i}: {exc}; reading the controller's state")
+                return
+            self._taken(stream, i, activity, sent_at)
+            if stream.started_at is not None:
+                break  # one segment per turn once moving, so that polls are never starved
+        if stream.sent >= n:
+            self._end_stream(None)
+
+    def _taken(self, stream: Stream, i: int, activity: int, sent_at: float) -> None:
+        """Segment ``i`` is in the controller's buffer."""
+        stream.sent = i + 1
+        if stream.started_at is not None:
+            stream.queue_end = max(stream.queue_end, sent_at) + stream.duration_of(i)
+            stream.ends.append(stream.queue_end)
+        elif activity != p.ACTIVITY_QUEUE:  # this segment started the motion
+            stream.started_at = sent_at
+            stream.queue_end = sent_at
+            for k in range(i + 1):
+                stream.queue_end += stream.duration_of(k)
+                stream.ends.append(stream.queue_end)
+            stream.started.set_result(sent_at)
+
+    def _confirm(self, stream: Stream) -> bool:
+        """Learn from the controller whether the unconfirmed segment was taken; True: go on."""
+        i, activity, sent_at, check_at = stream.unconfirmed
+        if stream.started_at is None and activity == p.ACTIVITY_QUEUE:
+            return self._restart(stream, f"the reply to queued segment {i} was lost")
+        if time.monotonic() < check_at:
+            return False
+        status = self.client.read_status()  # answered after the segment: the link is in order
+        self._status, self._status_stamp = status, time.monotonic()
+        encoders = self.client.read_positions()
+        stream.unconfirmed = None
+        row = stream.plan.segments[i]
+        at_end = all(abs(e - seg.target) <= START_SLACK_ENC
+                     for e, seg in zip(encoders, row, strict=False))
+        moved = any(seg.target != seg.p0 for seg in row)
+        # Moving: it plays (nothing else is queued after it). Done at its end (a late answer
+        # to the status read): it played. Done where it starts: the queue ran dry without it.
+        if all(s == p.STATUS_MOVING for s in status[:5]) or (at_end and moved):
+            self._log("info", f"segment {i} was taken (the motors play or played it)")
+            self._taken(stream, i, activity, sent_at)
+            return True
+        if stream.started_at is None:
+            return self._restart(stream, f"segment {i} did not start the motion")
+        self._end_stream(RuntimeError(
+            f"the controller did not take trajectory segment {i} (its reply was lost; the "
+            f"motors report {status[:5]}); the arm stopped at the end of segment {i - 1}"
+        ))
+        return False
+
+    def _restart(self, stream: Stream, why: str) -> bool:
+        """Nothing moves yet: flush the buffers (harmless twice) and stream from segment 0."""
+        stream.unconfirmed = None
+        if stream.restarts >= MAX_RESTARTS:
+            self._end_stream(RuntimeError(f"{why}; gave up after {MAX_RESTARTS} restarts"))
+            return False
+        stream.restarts += 1
+        self._log("warn", f"{why}; flushing the move buffers and sending the trajectory again")
+        self.client.flush_buffers()
+        encoders = self.client.read_positions()
+        first = stream.plan.segments[0]
+        moved = max(abs(e - seg.p0) for e, seg in zip(encoders, first, strict=False))
+        if moved > START_SLACK_ENC:  # it did move: streaming from the start would jump back
+            self.client.hold_all(encoders[:6])
+            self._end_stream(RuntimeError(f"{why}, and the arm had moved; stopped it"))
+            return False
+        stream.sent, stream.ends = 0, []
+        return True
 
     def _end_stream(self, error: Exception | None) -> None:
         stream, self._stream = self._stream, None
@@ -423,6 +574,7 @@ class ArmWorker:
         client.flush_buffers()
         encoders = client.read_positions()
         client.hold_all(encoders[:6])
+        self._freeze_on_connect = False
 
 
 class _Busy:

@@ -15,7 +15,12 @@ class KatanaClient:
         self.transport = transport
 
     def _call(self, command: p.Command) -> bytes:
+        """An idempotent request: re-sent by the transport on a lost or corrupt reply."""
         return self.transport.request(command.payload, command.reply_len)
+
+    def _once(self, command: p.Command) -> None:
+        """A command that must not act twice: sent once (transport.NoReply: outcome unknown)."""
+        self.transport.command(command.payload, command.reply_len)
 
     # ------------------------------------------------------------------ link
     def connect(self) -> None:
@@ -51,7 +56,8 @@ class KatanaClient:
 
     # ------------------------------------------------------------------ motor commands
     def move_motor(self, motor: int, encoder: int) -> None:
-        self._call(p.motor_command(motor, p.FLAG_MOVE, encoder))
+        """Sent once: a lost reply raises transport.NoReply (read the motor's state)."""
+        self._once(p.motor_command(motor, p.FLAG_MOVE, encoder))
 
     def hold_motor(self, motor: int, encoder: int) -> None:
         """Hold at ``encoder``; also clears a collision stop (as the vendor's unblock does)."""
@@ -69,8 +75,8 @@ class KatanaClient:
             self.hold_motor(motor, int(enc))
 
     def calibrate(self) -> None:
-        """Start calibrating all motors; poll read_status until none is calibrating."""
-        self._call(p.calibrate_all())
+        """Start calibrating all motors (sent once); poll read_status until none calibrates."""
+        self._once(p.calibrate_all())
 
     def flush_buffers(self) -> None:
         self._call(p.motor_command(p.ALL_MOTORS, p.FLAG_FLUSH))
@@ -92,17 +98,18 @@ class KatanaClient:
 
     # ------------------------------------------------------------------ splines
     def send_spline(self, motor: int, segment: p.SplineSegment) -> None:
-        """G: queue one motor's segment; start_splines runs what was queued."""
-        self._call(p.spline_one(motor, segment))
+        """G: queue one motor's segment (sent once); start_splines runs what was queued."""
+        self._once(p.spline_one(motor, segment))
 
     def start_splines(self, exact: bool = False, more: bool = False) -> None:
-        self._call(p.start_splines(exact=exact, more=more))
+        self._once(p.start_splines(exact=exact, more=more))
 
     def send_spline_all(
         self, segments: Sequence[p.SplineSegment], activity: int, exact: bool = False
     ) -> None:
-        """H: one segment for all six motors; ``activity`` is protocol.ACTIVITY_*."""
-        self._call(p.spline_all(list(segments), activity, exact))
+        """H: one segment for all six motors; ``activity`` is protocol.ACTIVITY_*. Sent once:
+        a segment played twice would jump the arm (transport.NoReply: read the state)."""
+        self._once(p.spline_all(list(segments), activity, exact))
 
     # ------------------------------------------------------------------ gripper
     def gripper(self, encoder: int) -> None:

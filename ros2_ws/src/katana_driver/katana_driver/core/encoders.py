@@ -1,4 +1,4 @@
-"""Encoder <-> joint-angle conversion of the Katana, per variant (shared/KATANA.md).
+"""Encoder <-> joint-angle conversion of the Katana, per variant (docs/KATANA.md).
 
 theta_kni = angleOffset - (enc - encoderOffset) * 2 pi / (ticksPerRev * dir); the URDF angle is
 theta_kni - pi for motors 1, 3, 4, 5 and theta_kni for motor 2, wrapped to [-pi, pi). This
@@ -11,26 +11,32 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from katana_description import models
+
 from .protocol import TICK_S
 
 VARIANTS = ("6M180", "6M90A", "6M90B")
 KATANA_TYPES = (300, 400, 450)
 
-ARM_JOINTS = (
-    "katana_motor1_pan_joint",
-    "katana_motor2_lift_joint",
-    "katana_motor3_lift_joint",
-    "katana_motor4_lift_joint",
-    "katana_motor5_wrist_roll_joint",
-)
-FINGER_JOINTS = ("katana_r_finger_joint", "katana_l_finger_joint")
-ALL_JOINTS = ARM_JOINTS + FINGER_JOINTS
+# Joint names and speed limits are katana_description's (one source for the sim and the arm).
+ARM_JOINTS = models.ARM_JOINTS
+FINGER_JOINTS = models.FINGER_JOINTS
+ALL_JOINTS = models.ALL_JOINTS
 
-# Maximum joint speeds, rad/s (motor 3 as measured on the arm, half the nominal); gripper last.
-MAX_SPEED = (2.209, 1.191, 1.191, 2.209, 2.209, 0.719)
+#: Maximum joint speeds of motors 1..6, rad/s (motor 6: the fingers).
+MAX_SPEED = tuple(models.JOINT_MAX_SPEED[j] for j in ARM_JOINTS + FINGER_JOINTS[:1])
 
-GRIPPER_OPEN_ENC, GRIPPER_OPEN_RAD = 30770, 0.30
-GRIPPER_CLOSED_ENC, GRIPPER_CLOSED_RAD = 12240, -0.44
+GRIPPER_OPEN_ENC, GRIPPER_OPEN_RAD = 30770, models.GRIPPER_OPEN
+GRIPPER_CLOSED_ENC, GRIPPER_CLOSED_RAD = 12240, models.GRIPPER_CLOSED
+
+
+def variant_of(model_name: str) -> tuple[int, str]:
+    """(Katana type, gripper variant) of an arm model name such as "450_6m180"."""
+    kind, _, variant = model_name.partition("_")
+    if not kind.isdigit() or int(kind) not in KATANA_TYPES or variant.upper() not in VARIANTS:
+        raise ValueError(f"arm model '{model_name}' is not TYPE_VARIANT with TYPE in "
+                         f"{KATANA_TYPES} and VARIANT in {VARIANTS}")
+    return int(kind), variant.upper()
 
 
 @dataclass(frozen=True)
@@ -106,6 +112,16 @@ class EncoderModel:
 
     def encoder_range(self, motor: int) -> tuple[int, int]:
         return self.params(motor).encoder_range
+
+    def calibration_pose(self, backoff_rad: float = 0.0) -> list[float]:
+        """Angles of motors 1..5 at their calibration stops, moved ``backoff_rad`` inwards."""
+        pose = []
+        for motor in range(1, 6):
+            stop = self.encoder_to_angle(motor, self.params(motor).encoder_offset)
+            lower, upper = self.joint_limits(motor)
+            inward = 1.0 if abs(stop - lower) < abs(stop - upper) else -1.0
+            pose.append(_wrap(stop + inward * backoff_rad))
+        return pose
 
     def joint_limits(self, motor: int) -> tuple[float, float]:
         """(lower, upper) in rad; upper may exceed pi when the range crosses the wrap (6M90B)."""

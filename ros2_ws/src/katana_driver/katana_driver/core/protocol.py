@@ -1,6 +1,6 @@
 """Katana controller wire protocol: framing, CRC-16/ARC, command encoders and reply decoders.
 
-Facts from shared/KATANA.md (gathered from the public KNI 4.3.0 sources and the ROS 1 driver;
+Facts from docs/KATANA.md (gathered from the public KNI 4.3.0 sources and the ROS 1 driver;
 no KNI code is copied). Layouts that no source settles are marked "unconfirmed" and kept in
 one place (this module) so that a lab with the arm can correct them.
 

@@ -6,6 +6,12 @@ deadline; a short reply or a bad CRC is re-sent up to ``retries`` times (after a
 flushes late replies, so that a stale reply is never taken for the next one), then a
 TransportError says what went wrong. A refusal (0xC0) is followed by the raw 0xC1 request
 and raised as protocol.ControllerError, which is not retried: the controller meant it.
+
+Only idempotent requests (reads, echo, hold, flush, off, limits) are re-sent. A command whose
+repetition would act twice (a spline segment, a motor move, calibration) goes through
+``command``: sent once; on a lost, corrupt or late reply the echo that resynchronises the link
+also tells what happened, because the controller answers in order: a late or corrupt reply
+before the echo's means it took the command; nothing before the echo's raises NoReply.
 """
 
 from __future__ import annotations
@@ -39,6 +45,11 @@ class TransportError(Exception):
 
 class LinkDown(TransportError):
     """The connection is closed or broken; reconnecting may help."""
+
+
+class NoReply(TransportError):
+    """A command sent once got no reply at all, not even late: whether the controller applied
+    it is unknown, so the caller reads the controller's state to learn it (never re-sends)."""
 
 
 @dataclass
@@ -152,6 +163,70 @@ class Transport(ABC):
                 f"{self.name}: no valid reply to '{letter}' after {self.retries + 1} attempts "
                 f"({'; '.join(dict.fromkeys(problems))})"
             )
+
+    def command(self, payload: bytes, reply_len: int) -> bytes | None:
+        """Send a non-idempotent command ONCE. Returns its reply payload, or None when the
+        controller answered but the reply was unreadable (corrupt: it took the command).
+        Raises NoReply when nothing came back, ControllerError on a refusal."""
+        frame = frame_request(payload)
+        letter = chr(payload[0]) if 32 <= payload[0] < 127 else f"0x{payload[0]:02X}"
+        with self._lock:
+            if not self.is_open:
+                raise LinkDown(f"{self.name}: not connected")
+            self.stats.requests += 1
+            if self._dirty:
+                if not self._guarded(self._resync):
+                    raise NoReply(f"{self.name}: the controller does not answer; '{letter}' "
+                                  "not sent")
+                self._dirty = False
+            self._guarded(self._write, frame)
+            deadline = time.monotonic() + self.timeout
+            data = self._guarded(self._read_until, 1, deadline)
+            if data and data[0] == ERROR_BYTE:
+                data += self._guarded(self._read_until, 2, deadline)
+                if data == _ERROR_FRAME:
+                    self.stats.controller_errors += 1
+                    raise self._fetch_error()
+            if data:
+                data += self._guarded(self._read_until, reply_len + 2 - len(data), deadline)
+            if len(data) == reply_len + 2:
+                try:
+                    return check_reply(data, reply_len)
+                except CrcError:
+                    self.stats.crc_errors += 1
+                    return None  # it answered: the command was taken
+            self.stats.timeouts += 1
+            late = self._guarded(self._resync_collect)
+            if late is None:
+                self._dirty = True
+                raise NoReply(f"{self.name}: no reply to '{letter}' and none to the echo after "
+                              "it; not re-sent")
+            data += late
+            if data[:3] == _ERROR_FRAME:
+                self.stats.controller_errors += 1
+                raise self._fetch_error()
+            if len(data) >= reply_len + 2:
+                try:
+                    return check_reply(data[: reply_len + 2], reply_len)
+                except CrcError:
+                    return None
+            if data:
+                return None  # a partial reply: it answered
+            raise NoReply(f"{self.name}: no reply to '{letter}' within {self.timeout:.3g} s; "
+                          "not re-sent")
+
+    def _resync_collect(self) -> bytes | None:
+        """Echo, and return the bytes that came before its reply (None: no echo reply)."""
+        self._write(_ECHO_FRAME)
+        deadline = time.monotonic() + self.timeout * (self.retries + 1)
+        buf = b""
+        while True:
+            chunk = self._read_until(1, deadline)
+            if not chunk:
+                return None
+            buf += chunk
+            if buf.endswith(_ECHO_REPLY):
+                return buf[: -len(_ECHO_REPLY)]
 
     def query_error(self) -> Exception:
         """The controller's last error (raw 0xC1 request), or a TransportError if unreadable."""

@@ -28,7 +28,8 @@ import cv2
 import numpy as np
 
 from .calibration import Calibration
-from .memory import Block, wrap_quarter
+from .memory import Block
+from .segmentation import wrap_quarter
 
 N_POINTS = 5
 N_ACTIONS = N_POINTS + 1
@@ -43,11 +44,10 @@ class FoveaParams:
     grid_radius_px: float = 36.0  # ...out to this far from its centre (36: action 1 too)
     fine_step_px: float = 2.0  # find_placement's second, finer pass
     table_step_m: float = 0.02  # grid of candidate table places (state 0)
-    reach_min: float = 0.14  # placement radius from the pan axis, m
-    reach_max: float = 0.29
-    # Farthest placement per stack height (index = state; the last entry holds above): a
-    # taller stack needs the wrist higher, so the arm reaches less far (katana_manipulation).
-    reach_max_by_state: tuple[float, ...] = ()
+    # (nearest, farthest) placement radius from the pan axis per stack height, m (index =
+    # state; the last entry holds above): a taller stack needs the wrist higher, so the arm
+    # reaches less far. fovea_node takes these from katana_manipulation.core.reach.
+    reach_by_state: tuple[tuple[float, float], ...] = ((0.14, 0.29),)
     area_x: tuple[float, float] = (0.14, 0.30)  # play area, m
     area_y: tuple[float, float] = (-0.16, 0.16)
     clearance: float = 0.005  # free margin around a placed block, m
@@ -62,8 +62,8 @@ class FoveaParams:
             "grid_radius_px": self.grid_radius_px >= 0,
             "fine_step_px": self.fine_step_px > 0,
             "table_step_m": self.table_step_m > 0,
-            "reach_min/reach_max": 0 <= self.reach_min < self.reach_max,
-            "reach_max_by_state": all(self.reach_min < r for r in self.reach_max_by_state),
+            "reach_by_state": len(self.reach_by_state) > 0 and all(
+                len(b) == 2 and 0 <= b[0] < b[1] for b in self.reach_by_state),
             "area_x": self.area_x[0] < self.area_x[1],
             "area_y": self.area_y[0] < self.area_y[1],
             "clearance": self.clearance >= 0,
@@ -234,16 +234,16 @@ class FoveaScene:
         return best.height, best, hull_bits(local[in_window(local, size)], self.params.offset_px)
 
     # ---------------------------------------------------------------- checks
-    def reach_max(self, state: int) -> float:
-        p = self.params
-        if not p.reach_max_by_state:
-            return p.reach_max
-        return min(p.reach_max, p.reach_max_by_state[min(state, len(p.reach_max_by_state) - 1)])
+    def reach(self, state: int) -> tuple[float, float]:
+        """(nearest, farthest) placement radius on a stack of height `state`, m."""
+        bands = self.params.reach_by_state
+        return bands[min(max(state, 0), len(bands) - 1)]
 
     def _reachable(self, x: float, y: float, state: int = 0) -> bool:
         p = self.params
         e = 1e-9  # a grid point back-projected from its pixel comes back within rounding
-        return (p.reach_min - e <= math.hypot(x, y) <= self.reach_max(state) + e
+        near, far = self.reach(state)
+        return (near - e <= math.hypot(x, y) <= far + e
                 and p.area_x[0] - e <= x <= p.area_x[1] + e
                 and p.area_y[0] - e <= y <= p.area_y[1] + e)
 

@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from .calibration import Calibration
+from .segmentation import wrap_quarter
 
 BLOCK_SIZE = (0.04, 0.04, 0.03)
 
@@ -67,11 +68,6 @@ class Seen:
     v: float
     angle: float  # image angle of a top-face edge, rad
     complete: bool  # top face fully visible: nothing rests on it
-
-
-def wrap_quarter(a: float) -> float:
-    a = (a + math.pi / 4) % (math.pi / 2) - math.pi / 4
-    return math.pi / 4 if math.isclose(a, -math.pi / 4) else a
 
 
 def footprint_overlap(a: Block, b: Block) -> float:

@@ -1,15 +1,16 @@
-"""The small world protocol the explorer is written against.
+"""The small environment protocol the explorer is written against.
 
 The same explorer drives the abstract blocks world in-process and the simulated or real arm
-through ROS: a world lists the instances of its current setting in scan order, executes one
-(or finds a place that realises a planned state-action pair), and reports the label.
+through ROS: an environment lists the instances of its current setting in scan order, executes
+one (or finds a place that realises a planned state-action pair), and reports the label, with
+what it did on the way (an `Outcome`) when it has more to say than the label.
 """
 
 from __future__ import annotations
 
 import random
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -99,18 +100,30 @@ class ShuffledSetting:
         return None  # the world realises any available pair itself
 
 
-class World(Protocol):
-    """What the explorer needs from a world."""
+@dataclass(frozen=True)
+class Outcome:
+    """The label of one executed placement and the environment's record of how it was done.
+
+    The robot environment returns one (its `record` is what the experience log keeps); the
+    abstract world returns the bare label, which the explorer reads as `Outcome(label)`.
+    """
+
+    label: int
+    record: Any = None
+
+
+class Environment(Protocol):
+    """What the explorer needs from an environment."""
 
     def observe(self) -> Setting | ShuffledSetting:
         """The instances of the current setting, in the order the fovea scans them."""
         ...
 
-    def execute(self, state: int, action: int, index: int | None = None) -> int:
-        """Place a block; returns +1 (stable) or -1 (fell).
+    def execute(self, state: int, action: int, index: int | None = None) -> int | Outcome:
+        """Place a block; returns the label +1 (stable) or -1 (fell), or an Outcome with it.
 
         index: position of the chosen instance in the last observed setting, or None for a
-        planned pair, which the world must realise itself (fovea search) or raise
+        planned pair, which the environment must realise itself (fovea search) or raise
         PlacementUnavailable.
         """
         ...

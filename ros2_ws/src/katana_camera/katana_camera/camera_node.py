@@ -4,7 +4,10 @@ Frames are grabbed in a thread (a blocking read never holds the executor) and pu
 rgb8 with sensor-data QoS, with the calibration from a standard camera_info YAML. A missing
 or unplugged camera is logged as a clear error and reopened every ``reconnect_period``; the
 node keeps running. ``device: substitute`` selects a SUBSTITUTE synthetic source for tests
-and dry runs.
+and dry runs. Stamps are wall time at the grab (hardware runs on wall time).
+
+Parameters: rate, frame_id and reconnect_period are live; device, width, height and
+camera_info_file are read-only (they are what the camera was opened with).
 """
 
 from __future__ import annotations
@@ -12,22 +15,39 @@ from __future__ import annotations
 import os
 import sys
 import threading
+import time
 
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from katana_common.conversions import time_msg
+from katana_common.node_runner import run_node
+from katana_common.params import Param, ParameterError, declare_parameters
+from katana_common.qos import SENSOR_QOS
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 
-from katana_driver.core.camera import (
+from katana_camera.core.camera import (
     Calibration,
+    CameraInfoError,
     FrameSource,
     RateLimiter,
     load_calibration,
     make_frame_source,
 )
-from katana_driver.params import declare
+
+PARAMS = (
+    Param("device", "/dev/video0",
+          "V4L2 device path or index, a video file, or 'substitute' (synthetic test frames)",
+          nonempty=True),
+    Param("width", 640, "requested image width, px", low=16, high=4096),
+    Param("height", 480, "requested image height, px", low=16, high=4096),
+    Param("rate", 15.0, "publishing rate, Hz", low=0.5, high=60.0, live=True),
+    Param("camera_info_file", "",
+          "camera_info YAML from camera_calibration ('' = the package's NOMINAL intrinsics)"),
+    Param("frame_id", "camera_optical_frame", "optical frame of the images (REP 105)",
+          nonempty=True, live=True),
+    Param("reconnect_period", 2.0, "s between attempts to reopen the camera", low=0.1,
+          high=60.0, live=True),
+)
 
 
 def nominal_camera_info_path() -> str:
@@ -35,7 +55,7 @@ def nominal_camera_info_path() -> str:
     try:
         from ament_index_python.packages import get_package_share_directory
 
-        share = get_package_share_directory("katana_driver")
+        share = get_package_share_directory("katana_camera")
         path = os.path.join(share, "config", "camera_info_nominal.yaml")
         if os.path.exists(path):
             return path
@@ -63,50 +83,47 @@ class CameraNode(Node):
     def __init__(self, frame_source: FrameSource | None = None, **kwargs) -> None:
         kwargs.setdefault("node_name", "camera_node")
         super().__init__(**kwargs)
-        device = declare(
-            self,
-            "device",
-            "/dev/video0",
-            "V4L2 device path or index, a video file, or 'substitute' (synthetic test frames)",
-        )
-        width = declare(self, "width", 640, "requested image width, px", 16, 4096)
-        height = declare(self, "height", 480, "requested image height, px", 16, 4096)
-        self.rate = declare(self, "rate", 15.0, "publishing rate, Hz", 0.5, 60.0)
-        info_file = declare(
-            self,
-            "camera_info_file",
-            "",
-            "camera_info YAML from camera_calibration ('' = the package's NOMINAL intrinsics)",
-        )
-        self.frame_id = declare(
-            self, "frame_id", "camera_optical_frame", "optical frame of the images (REP 105)"
-        )
-        self.reconnect_period = declare(
-            self, "reconnect_period", 2.0, "s between attempts to reopen the camera", 0.1, 60.0
-        )
+        self.params = params = declare_parameters(self, PARAMS)
+        self.rate, self.frame_id = params["rate"], params["frame_id"]
+        self.reconnect_period = params["reconnect_period"]
+        info_file, device = params["camera_info_file"], params["device"]
+        width, height = params["width"], params["height"]
         if not info_file:
             info_file = nominal_camera_info_path()
             self.get_logger().warning(
                 f"camera_info_file not set: publishing NOMINAL intrinsics from {info_file}; "
                 "calibrate the camera for real use (docs/hardware.md)"
             )
-        self.calibration = load_calibration(info_file)  # CameraInfoError stops the node
+        try:
+            self.calibration = load_calibration(info_file)
+        except CameraInfoError as exc:  # a start-up configuration error, like a bad parameter
+            raise ParameterError(f"parameter 'camera_info_file': {exc}") from exc
         self._info = calibration_to_msg(self.calibration, self.frame_id)
+        self._limiter = RateLimiter(self.rate)
+        params.on_change(self._apply)
         self.source = frame_source or make_frame_source(device, width, height, self.rate)
         self.frames_published = 0
         self.error = ""
         self._size_warned = False
-        self._image_pub = self.create_publisher(Image, "camera/image_raw", qos_profile_sensor_data)
-        self._info_pub = self.create_publisher(
-            CameraInfo, "camera/camera_info", qos_profile_sensor_data
-        )
+        self._image_pub = self.create_publisher(Image, "camera/image_raw", SENSOR_QOS)
+        self._info_pub = self.create_publisher(CameraInfo, "camera/camera_info", SENSOR_QOS)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="camera-grabber", daemon=True)
         self._thread.start()
         self.get_logger().info(f"capturing from {self.source.description} at {self.rate:g} Hz")
 
+    def _apply(self, changed: dict) -> None:
+        if "rate" in changed:
+            self.rate = changed["rate"]
+            self._limiter.period = 1.0 / self.rate
+        if "frame_id" in changed:
+            self.frame_id = changed["frame_id"]
+            self._info.header.frame_id = self.frame_id
+        if "reconnect_period" in changed:
+            self.reconnect_period = changed["reconnect_period"]
+
     def _run(self) -> None:
-        limiter = RateLimiter(self.rate)
+        limiter = self._limiter
         opened = False
         while not self._stop.is_set():
             if not opened:
@@ -149,7 +166,7 @@ class CameraNode(Node):
                 f"frames are {w}x{h} but the calibration is for "
                 f"{self.calibration.width}x{self.calibration.height}"
             )
-        stamp = self.get_clock().now().to_msg()
+        stamp = time_msg(time.time())
         image = Image()
         image.header.stamp = stamp
         image.header.frame_id = self.frame_id
@@ -166,30 +183,18 @@ class CameraNode(Node):
             return
         self.frames_published += 1
 
-    def destroy_node(self) -> None:
+    def stop(self) -> None:
+        """End the grabber thread at once (run_node calls it on shutdown)."""
         self._stop.set()
-        self._thread.join(timeout=3.0)
+        self._thread.join(timeout=1.5)
+
+    def destroy_node(self) -> None:
+        self.stop()
         super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=args)
-    try:
-        node = CameraNode()
-    except Exception as exc:  # noqa: BLE001 - a bad parameter or calibration file: say why
-        rclpy.logging.get_logger("camera_node").fatal(str(exc))
-        rclpy.try_shutdown()
-        return 1
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(CameraNode, "camera_node", args)
 
 
 if __name__ == "__main__":

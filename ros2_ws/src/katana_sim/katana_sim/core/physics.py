@@ -1,9 +1,9 @@
-"""The PyBullet world of the Katana, its table and blocks. ROS-free; `sim_node` is a thin wrapper.
+"""The PyBullet physics of the Katana, its table and blocks. ROS-free; `sim_node` is a thin wrapper.
 
 Usage (also for scripted scenes in other packages' tests):
 
-    from katana_sim.core import SimWorld, SimConfig
-    world = SimWorld(SimConfig(num_blocks=4, seed=1))  # DIRECT mode, no display
+    from katana_sim.core import PhysicsSim, SimConfig
+    world = PhysicsSim(SimConfig(num_blocks=4, seed=1))  # DIRECT mode, no display
     world.reset(seed=7)                    # scatter the blocks (seeded), park the arm
     rgb = world.render()                   # np.uint8 (480, 640, 3), overhead camera
     cam = world.camera                     # CameraModel: K, P, pose, project(), pixel_to_plane()
@@ -13,6 +13,7 @@ Usage (also for scripted scenes in other packages' tests):
     world.stack("green", on="red", dx=0.0, dy=0.0)            # put one block on another
     world.step(240)                        # advance physics (1/physics_rate s per step)
     world.settle()                         # step until every block is at rest (bounded)
+    world.advance_clock(0.5)               # let simulated time pass with the world frozen
     world.set_arm_positions(q5)            # teleport the arm (and hold it there)
     world.close()
 
@@ -37,6 +38,9 @@ import numpy as np
 import pybullet as p
 from katana_description import models as m
 from katana_description import urdf_gen, urdf_path
+from katana_description.arm_contract import complete_trajectory as ctl_complete
+from katana_description.arm_contract import validate_gripper as ctl_validate_gripper
+from katana_description.arm_contract import validate_trajectory as ctl_validate
 
 from katana_sim.core import controllers as ctl
 from katana_sim.core.camera import CameraModel
@@ -77,6 +81,13 @@ def _yaw_of(quat) -> float:
     return yaw
 
 
+class _Refused:
+    """The stand-in controller of a goal refused before it started."""
+
+    def __init__(self, outcome) -> None:
+        self.outcome = outcome
+
+
 class ArmHandle:
     """A running arm or gripper motion; `.outcome` is updated as the world steps."""
 
@@ -88,12 +99,17 @@ class ArmHandle:
         return self.controller.outcome
 
 
-class SimWorld:
+class PhysicsSim:
     def __init__(self, config: SimConfig | None = None) -> None:
         self.cfg = (config or SimConfig()).validate()
         self.camera: CameraModel = self.cfg.camera
+        self.contract = ctl.ArmContract(model=self.cfg.model)
         self.dt = 1.0 / self.cfg.physics_rate
-        self.time = 0.0
+        # Simulated time is whole physics steps plus idle time (advance_clock); motions run on
+        # step counts, so a motion's targets are bit-for-bit the same whatever time it starts at
+        # (float time since start-up would round differently after a different history).
+        self._steps = 0
+        self._idle_s = 0.0
         self._cid = p.connect(p.DIRECT)
         self._tmp = tempfile.TemporaryDirectory(prefix="katana_sim_")
         self._rng = np.random.default_rng(self.cfg.seed)
@@ -145,8 +161,11 @@ class SimWorld:
         for colour in cfg.colours:
             text = urdf_gen.block_urdf(colour, cfg.block_size, cfg.block_mass, m.COLOURS[colour])
             body = self._pb(p.loadURDF, self._write(f"block_{colour}.urdf", text), (0, 0, -1))
+            # Bullet's sleeping: a block at rest is not integrated until something touches it
+            # (about a third of a step's cost with four blocks; deterministic).
             self._pb(p.changeDynamics, body, -1, lateralFriction=cfg.block_friction,
-                     spinningFriction=0.001, rollingFriction=0.0, restitution=0.0)
+                     spinningFriction=0.001, rollingFriction=0.0, restitution=0.0,
+                     activationState=p.ACTIVATION_STATE_ENABLE_SLEEPING)
             self.blocks[colour] = body
         self._targets = np.zeros(len(self._all_idx))
         self._target_vel = np.zeros(len(self._all_idx))
@@ -240,6 +259,24 @@ class SimWorld:
                 return False
         return True
 
+    def settle_motion(self, max_time: float = 2.0) -> None:
+        """After a motion: step until every block is at rest (bounded by max_time simulated s).
+
+        The fast sim freezes physics while idle (`advance_clock`), so a motion only ends once
+        nothing moves any more: a released block has landed, a stack has toppled or stood. The
+        checks are every 0.05 s of simulated time, so the number of steps depends only on the
+        state, never on wall-clock timing."""
+        chunk = max(1, int(round(0.05 / self.dt)))
+        t_end = self.time + max_time
+        while not self.blocks_at_rest() and self.time < t_end:
+            self.step(chunk)
+
+    def advance_clock(self, seconds: float) -> None:
+        """Let simulated time pass without stepping physics (the fast sim while idle, after
+        `settle_motion`): the motors hold, nothing moves, images and stamps go on."""
+        if seconds > 0:
+            self._idle_s += seconds
+
     def settle(self, max_time: float = 3.0, min_time: float = 0.2) -> bool:
         """Step until every block is at rest (True) or max_time simulated seconds passed."""
         self.step(int(min_time / self.dt))
@@ -288,53 +325,67 @@ class SimWorld:
         return self.link_pose("katana_gripper_tool_frame")
 
     def start_trajectory(self, goal: ctl.TrajectoryGoal) -> ArmHandle:
-        """Validate and start a trajectory (preempting a running one). A refused goal returns a
-        handle that is already done, with the error code and reason."""
+        """Validate (the arm contract) and start a trajectory, preempting a running one. A
+        refused goal returns a handle that is already done, with the error code and reason.
+        Joints a partial goal leaves out hold where they are."""
         current = self.joint_positions()
-        code, why = ctl.validate_trajectory(goal, current)
-        if code != ctl.SUCCESSFUL:
-            follower = ctl.TrajectoryFollower.__new__(ctl.TrajectoryFollower)
-            follower.outcome = ctl.Outcome(ctl.ABORTED, code, why)
-            return ArmHandle(follower)
+        verdict = ctl_validate(goal, current, self.contract)
+        if not verdict.ok:
+            return ArmHandle(_Refused(ctl.refused(verdict.error_code, verdict.error_string)))
         self.cancel_trajectory("preempted by a new goal")
-        start = [self._targets[m.ARM_JOINTS.index(n)] for n in goal.joint_names]
-        follower = ctl.TrajectoryFollower(goal, self.time, start)
+        full = ctl_complete(goal, current)
+        follower = ctl.TrajectoryFollower(full, self.contract, 0.0, self._targets[:5])
+        follower.start_step = self._steps
         self._trajectory = follower
         return ArmHandle(follower)
 
     def cancel_trajectory(self, reason: str = "canceled", only: ArmHandle | None = None) -> None:
         """Stop the running trajectory where the arm is now, and hold (if `only` is given: only
         when that handle's trajectory is the running one)."""
-        if only is not None and only.controller is not self._trajectory:
+        if (only is not None and only.controller is not self._trajectory) or self._cid is None:
             return
         if self._trajectory is not None and not self._trajectory.outcome.done:
-            self._trajectory.outcome = ctl.Outcome(ctl.CANCELED, ctl.SUCCESSFUL, reason)
+            self._trajectory.judge.cancel(reason)
             pos, _, _ = self.joint_state()
             self._targets[:5] = pos[:5]
             self._target_vel[:5] = 0.0
         self._trajectory = None
 
     def start_gripper(self, position: float, effort: float = 0.0) -> ArmHandle:
-        """Move both fingers towards `position` (rad) with at most `effort` N m (0: default)."""
-        if not math.isfinite(position) or not math.isfinite(effort) or effort < 0:
-            raise ValueError(f"gripper goal must be finite with effort >= 0: {position}, {effort}")
+        """Move both fingers towards `position` (rad) with at most `effort` N m (0: default).
+        Refused (a handle already done) by the arm contract's rules."""
+        goal = ctl.GripperGoal(position, effort)
+        verdict = ctl_validate_gripper(goal, arm_active=self._trajectory is not None)
+        pos, _, _ = self.joint_state()
+        if not verdict.ok:
+            return ArmHandle(_Refused(ctl.GripperOutcome(
+                ctl.ABORTED, float(pos[5:].mean()), message=verdict.error_string)))
         self.cancel_gripper()
         self._finger_effort = effort if effort > 0 else self.cfg.gripper_effort
         # Start from where the fingers are: a target squeezing a block lies past them.
-        pos, _, _ = self.joint_state()
-        ctrl = ctl.GripperController(position, self._finger_effort, self.time,
-                                     float(pos[5:].mean()))
+        ctrl = ctl.GripperController(goal, self.contract, 0.0, float(pos[5:].mean()))
+        ctrl.start_step = self._steps
         self._gripper = ctrl
         return ArmHandle(ctrl)
 
     def cancel_gripper(self, only: ArmHandle | None = None) -> None:
         """Stop the fingers where they are (if `only` is given: only that motion)."""
-        if only is not None and only.controller is not self._gripper:
+        if (only is not None and only.controller is not self._gripper) or self._cid is None:
             return
         if self._gripper is not None and not self._gripper.outcome.done:
             pos, _, _ = self.joint_state()
-            self._gripper.outcome = ctl.GripperOutcome(ctl.CANCELED, float(pos[5:].mean()))
+            self._gripper.cancel(float(pos[5:].mean()))
+            self._targets[5:] = pos[5:].mean()
         self._gripper = None
+
+    @property
+    def time(self) -> float:
+        """Simulated seconds since start-up (the stamps and /clock)."""
+        return self._steps * self.dt + self._idle_s
+
+    def elapsed(self, controller) -> float:
+        """Simulated seconds since a motion started, from whole steps."""
+        return (self._steps - controller.start_step) * self.dt
 
     @property
     def busy(self) -> bool:
@@ -351,23 +402,18 @@ class SimWorld:
         check_every = max(1, int(round(0.01 / self.dt)))
         cid, arm, idx = self._cid, self.arm, self._all_idx
         kp, kd = [0.3] * 7, [1.0] * 7
-        names = self._trajectory.names if self._trajectory is not None else []
-        joints = [m.ARM_JOINTS.index(name) for name in names]
         for k in range(n):
             traj, grip = self._trajectory, self._gripper
-            if traj is not None:
-                q, qd = traj.sample(self.time)
-                for j, v, vd in zip(joints, q, qd, strict=True):
-                    self._targets[j] = v
-                    self._target_vel[j] = vd
+            if traj is not None:  # completed goals: all five arm joints, ARM_JOINTS order
+                self._targets[:5], self._target_vel[:5] = traj.sample(self.elapsed(traj))
             if grip is not None:
-                self._targets[5] = self._targets[6] = grip.target(self.time)
+                self._targets[5] = self._targets[6] = grip.target(self.elapsed(grip))
             p.setJointMotorControlArray(
                 arm, idx, p.POSITION_CONTROL, targetPositions=self._targets.tolist(),
                 targetVelocities=self._target_vel.tolist(), forces=forces, positionGains=kp,
                 velocityGains=kd, physicsClientId=cid)
             p.stepSimulation(physicsClientId=cid)
-            self.time += self.dt
+            self._steps += 1
             if (traj is not None or grip is not None) and (k == n - 1 or k % check_every == 0):
                 self._check_controllers()
 
@@ -375,12 +421,11 @@ class SimWorld:
         pos, vel, _ = self.joint_state()
         traj = self._trajectory
         if traj is not None:
-            actual = np.array([pos[m.ARM_JOINTS.index(n)] for n in traj.names])
-            if traj.check(self.time, actual).done:
+            if traj.check(self.elapsed(traj), pos[:5], ctl.rest(vel[:5])).done:
                 self._target_vel[:5] = 0.0
                 self._trajectory = None
         grip = self._gripper
-        if grip is not None and grip.check(self.time, pos[5:], vel[5:]).done:
+        if grip is not None and grip.check(self.elapsed(grip), pos[5:], vel[5:]).done:
             self._gripper = None
 
     # ------------------------------------------------------------------ sensing

@@ -10,18 +10,19 @@ import rclpy
 import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from katana_driver.camera_node import CameraNode, nominal_camera_info_path
-from katana_driver.core.camera import (
+from katana_camera.camera_node import CameraNode, nominal_camera_info_path
+from katana_camera.core.camera import (
     CameraInfoError,
     OpenCvFrameSource,
     SubstituteFrameSource,
     load_calibration,
 )
+from katana_common.params import ParameterError
+from katana_common.qos import SENSOR_QOS
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 
 pytestmark = pytest.mark.timeout(60)
@@ -98,7 +99,7 @@ class CameraGraph:
         self.client = Node(f"camera_test_client_{n}", context=self.ctx)
         self.images: list[Image] = []
         self.infos: list[CameraInfo] = []
-        qos = qos_profile_sensor_data
+        qos = SENSOR_QOS
         self.client.create_subscription(Image, "camera/image_raw", self.images.append, qos)
         self.client.create_subscription(CameraInfo, "camera/camera_info", self.infos.append, qos)
         self.executor = SingleThreadedExecutor(context=self.ctx)
@@ -199,7 +200,7 @@ def test_bad_calibration_file_stops_the_node(tmp_path):
     ctx = Context()
     rclpy.init(context=ctx)
     try:
-        with pytest.raises(CameraInfoError, match="cannot read"):
+        with pytest.raises(ParameterError, match="camera_info_file.*cannot read"):
             CameraNode(
                 frame_source=SubstituteFrameSource(),
                 node_name=f"camera_bad_{next(_ids)}",
@@ -214,3 +215,28 @@ def test_opencv_source_on_a_missing_device_does_not_open():
     source = OpenCvFrameSource("/dev/katana_no_such_camera")
     assert not source.open()
     assert source.read() is None
+
+
+_number = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-5, 5),
+                    st.booleans(), st.text(max_size=3), st.none())
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    field=st.sampled_from(["camera_matrix", "distortion_coefficients", "projection_matrix",
+                           "rectification_matrix"]),
+    data=st.one_of(st.lists(_number, max_size=13), _number),
+)
+def test_any_camera_info_yaml_gives_finite_numbers_or_a_clear_error(tmp_path_factory, field,
+                                                                    data):
+    """CameraInfo K, D, R and P are finite numbers, or the file is refused naming the field."""
+    path = tmp_path_factory.mktemp("info") / "cam.yaml"
+    write_info(path, **{field: {"rows": 3, "cols": 3, "data": data}})
+    try:
+        cal = load_calibration(str(path))
+    except CameraInfoError as exc:
+        assert field in str(exc) or "YAML" in str(exc)
+        return
+    for values in (cal.k, cal.d, cal.r, cal.p):
+        assert all(isinstance(v, float) and np.isfinite(v) for v in values)
+    assert len(cal.k) == 9 and len(cal.r) == 9 and len(cal.p) == 12

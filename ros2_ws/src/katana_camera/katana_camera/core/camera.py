@@ -3,7 +3,7 @@
 The YAML is the standard one written by ROS's camera_calibration (image_width, image_height,
 camera_name, camera_matrix, distortion_model, distortion_coefficients, rectification_matrix,
 projection_matrix; matrices as {rows, cols, data}). camera_info_manager is not on PyPI, so
-the few lines that read it are here.
+the few lines that read it are here. Every number of K, D, R and P must be finite.
 """
 
 from __future__ import annotations
@@ -40,7 +40,10 @@ def _matrix(doc: dict, key: str, rows: int, cols: int | None, path: str) -> tupl
     if not isinstance(entry, dict) or "data" not in entry:
         raise CameraInfoError(f"{path}: '{key}' must be a mapping with rows, cols and data")
     data = entry["data"]
-    if not isinstance(data, list) or not all(isinstance(x, (int, float)) for x in data):
+    numeric = isinstance(data, list) and all(
+        isinstance(x, int | float) and not isinstance(x, bool) for x in data
+    )
+    if not numeric:
         raise CameraInfoError(f"{path}: '{key}.data' must be a list of numbers")
     if cols is not None and len(data) != rows * cols:
         raise CameraInfoError(f"{path}: '{key}' needs {rows * cols} numbers, has {len(data)}")

@@ -1,4 +1,5 @@
-"""The simulation issue's pick_place_executor drives the EMULATED arm through the same actions."""
+"""pick_place_executor drives the EMULATED arm through the driver's actions (a whole-graph test:
+katana_driver and katana_manipulation together), also with spline replies delayed 0.6 s."""
 
 import time
 
@@ -8,6 +9,7 @@ from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Pose, Vector3
 from katana_description import models
 from katana_driver.core.encoders import ARM_JOINTS, EncoderModel
+from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
 from katana_driver.katana_driver_node import KatanaDriverNode
 from katana_interfaces.action import FollowJointTrajectory, PickAndPlace
 from katana_manipulation.pick_place_executor import PickPlaceExecutor
@@ -22,6 +24,14 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 pytestmark = pytest.mark.timeout(120)
 
 
+@pytest.fixture
+def emulator():
+    made = KatanaEmulator(KatanaModel(calibrated=True, time_scale=2.0), Faults())
+    made.serve_tcp("127.0.0.1", 0)
+    yield made
+    made.stop()
+
+
 def pose(x, y, z):
     p = Pose()
     p.position.x, p.position.y, p.position.z = x, y, z
@@ -29,8 +39,10 @@ def pose(x, y, z):
     return p
 
 
-def test_executor_picks_and_places_on_the_emulated_arm(make_emulator):
-    emulator = make_emulator(calibrated=True, time_scale=2.0)
+@pytest.mark.parametrize("spline_latency_s", [0.0, 0.6], ids=["prompt", "spline_replies_late"])
+def test_executor_picks_and_places_on_the_emulated_arm(emulator, spline_latency_s):
+    """With replies to spline commands 0.6 s late (past the driver's 0.5 s timeout) the driver
+    once re-sent segments, the arm jumped and ended 0.17 rad from the goal."""
     # A 4 cm block between the fingers: the emulated gripper stalls where a block holds it.
     block_angle = models.finger_angle_for_opening(0.04)
     emulator.model.gripper_stall_at = int(EncoderModel.gripper_angle_to_encoder(block_angle))
@@ -74,6 +86,8 @@ def test_executor_picks_and_places_on_the_emulated_arm(make_emulator):
         parked_result = parked.result().get_result_async()
         assert spin_until(parked_result.done, 15.0)
         assert parked_result.result().status == GoalStatus.STATUS_SUCCEEDED
+        emulator.model.reset_counters()
+        emulator.faults.spline_latency_s = spline_latency_s
         goal = PickAndPlace.Goal(
             block_id="red",
             pick=pose(0.22, 0.06, 0.015),
@@ -94,6 +108,8 @@ def test_executor_picks_and_places_on_the_emulated_arm(make_emulator):
         # The arm ends parked (the executor's park pose), as read from the emulated encoders.
         parked = driver.worker.state.positions[:5]
         assert parked == pytest.approx(list(executor_node.planner.p.park_pose), abs=0.01)
+        assert emulator.model.duplicated_segments == 0
+        assert emulator.model.max_speed_ratio <= 1.05, f"motor {emulator.model.max_speed_motor}"
     finally:
         executor.shutdown()
         for node in (driver, executor_node, client_node):

@@ -1,0 +1,84 @@
+"""run_recorder: the run's topics into one rosbag2 MCAP file (katana-run --record FILE.mcap).
+
+Subscribes (serialized, never deserialized) to what shows a run: camera images and camera_info
+(throttled to `image_rate_hz`), joint_states, memory/blocks, perception/detections,
+curiosity/experience, curiosity/learner_state and the fovea and curiosity markers. Each message
+is stamped with its receive time on the node's clock (sim time with use_sim_time), as
+`ros2 bag record` does.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from katana_common.node_runner import run_node
+from katana_common.params import Param, declare_parameters
+from katana_common.qos import EVENT_QOS, JOINT_STATE_QOS, SENSOR_QOS
+from katana_interfaces.msg import BlockArray, Experience, LearnerState
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image, JointState
+from visualization_msgs.msg import MarkerArray
+
+from .recording import McapRecording
+
+#: topic, message class, ROS type name, QoS, throttled with the images. State topics too are
+#: taken as events (volatile, depth 100): every change is recorded, none squeezed out by the
+#: depth of 1 that suits a late joiner; the recorder starts with the graph, before them.
+TOPICS = (
+    ("camera/image_raw", Image, "sensor_msgs/msg/Image", SENSOR_QOS, True),
+    ("camera/camera_info", CameraInfo, "sensor_msgs/msg/CameraInfo", SENSOR_QOS, True),
+    ("joint_states", JointState, "sensor_msgs/msg/JointState", JOINT_STATE_QOS, False),
+    ("memory/blocks", BlockArray, "katana_interfaces/msg/BlockArray", EVENT_QOS, False),
+    ("perception/detections", BlockArray, "katana_interfaces/msg/BlockArray", EVENT_QOS, False),
+    ("curiosity/experience", Experience, "katana_interfaces/msg/Experience", EVENT_QOS, False),
+    ("curiosity/learner_state", LearnerState, "katana_interfaces/msg/LearnerState", EVENT_QOS,
+     False),
+    ("fovea/markers", MarkerArray, "visualization_msgs/msg/MarkerArray", EVENT_QOS, False),
+    ("curiosity/markers", MarkerArray, "visualization_msgs/msg/MarkerArray", EVENT_QOS, False),
+)
+
+SPECS = (
+    Param("path", "run.mcap", "The MCAP file to write (read-only).", nonempty=True),
+    Param("image_rate_hz", 2.0, "Images (and camera_info) recorded per second of the node's "
+          "clock, at most; 0 records none (live).", 0.0, 100.0, live=True),
+)
+
+
+class RecorderNode(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("run_recorder", **kwargs)
+        self.params = declare_parameters(self, SPECS)
+        self.recording = McapRecording(self.params["path"])
+        self._last_image_ns: dict[str, int] = {}
+        for topic, cls, type_name, qos, throttled in TOPICS:
+            self.recording.add_topic("/" + topic, type_name)
+            self.create_subscription(
+                cls, topic, self._callback("/" + topic, throttled), qos, raw=True)
+
+    def _callback(self, topic: str, throttled: bool):
+        def on_message(data: bytes) -> None:
+            now_ns = self.get_clock().now().nanoseconds
+            if throttled:
+                rate = self.params["image_rate_hz"]
+                last = self._last_image_ns.get(topic)
+                if rate <= 0.0 or (last is not None and 0 <= now_ns - last < 1e9 / rate):
+                    return
+                self._last_image_ns[topic] = now_ns
+            self.recording.write(topic, data, now_ns)
+        return on_message
+
+    def stop(self) -> None:
+        """Write the summary and close the file (run_node and katana-run call this)."""
+        self.recording.close()
+
+    def destroy_node(self) -> None:
+        self.recording.close()
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(RecorderNode, "run_recorder", args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

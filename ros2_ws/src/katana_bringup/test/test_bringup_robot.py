@@ -1,0 +1,165 @@
+"""katana-robot on the fast sim: the truth measurement, the skill node's choices and a
+two-seed `paper` run writing every file. Each test keeps to a few placements."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+from katana_bringup import robot
+from katana_bringup.run import build_nodes
+from katana_bringup.testing import InProcessGraph
+from katana_curiosity.core.robot_loop import robot_bank
+from katana_curiosity.core.robot_truth import TruthTable
+from katana_curiosity.core.run_record import CHECKPOINT_NAME, save_checkpoint
+
+
+def _graph(seed: int) -> tuple[InProcessGraph, robot.GraphClient]:
+    g = InProcessGraph()
+    g.add(*build_nodes("sim", robot.graph_params(seed), g.context,
+                       layers=("arm", "perception")))
+    client = robot.GraphClient(g.node("test_client"))
+    client.wait_ready()
+    return g, client
+
+
+def test_truth_on_a_few_trials_is_close_to_the_hand_built_expectation():
+    """On one block, action 6 (all five fovea points on the block below) stays and action 1
+    (none on it) falls: by hand, P = 1 and P = 0. Three trials of each."""
+    g, client = _graph(seed=3)
+    try:
+        measurer = robot.TruthMeasurer(client, seed=3, max_height=3, block_height_m=0.03)
+        table = TruthTable(4, 6)
+        for height, action in [(1, 6), (1, 1)] * 3:
+            for _ in range(4):  # a setting the fovea cannot realise is built again
+                label = measurer.trial(height, action)
+                if label is not None:
+                    table.record(height, action, label)
+                    break
+    finally:
+        g.close()
+    assert table.trials[1, 5] == 3 and table.trials[1, 0] == 3, measurer.progress
+    assert table.stayed[1, 5] >= 2  # P(stays | h1, a6) = 1 by hand
+    assert table.stayed[1, 0] <= 1  # P(stays | h1, a1) = 0 by hand
+
+
+def _model(tmp_path, good_on_two: bool):
+    """A learner taught by constructed experience: the table and action 6 on one block stay;
+    on a two-stack every placement falls, or action 6 stays too (`good_on_two`)."""
+    bank = robot_bank(3, 6, 1.0, 0.1)
+    for _ in range(20):
+        bank.update(0, 0, 1.0)
+        bank.update(1, 5, 1.0)
+        for a in range(5):
+            bank.update(1, a, -1.0)
+            bank.update(2, a, -1.0)
+        bank.update(2, 5, 1.0 if good_on_two else -1.0)
+    folder = tmp_path / ("good" if good_on_two else "bad")
+    folder.mkdir()
+    save_checkpoint(folder / CHECKPOINT_NAME, bank, 20 * 12)
+    return folder
+
+
+def test_skill_node_chooses_what_the_plan_says_in_a_two_stack_setting(tmp_path):
+    """On the sim: a square two-stack and single blocks. The node loads the run's model,
+    observes the setting and makes the choice of the plan (core.skill, checked against value
+    iteration in test_curiosity_skill) among what the fovea offers: with a model that
+    predicts action 6 holds on two it builds on the two-stack, (2, 6). (The paper's tricky
+    situation, a skewed two-stack, is tested with constructed models in test_curiosity_skill.)"""
+    from katana_curiosity.core.skill import LearnedModel, StackingSkill
+    from katana_curiosity.skill_node import SkillNode, load_model
+    from katana_interfaces.action import BuildStack
+    from katana_interfaces.srv import ObserveSetting
+    from rclpy.action import ActionClient
+    from rclpy.parameter import Parameter
+
+    g, client = _graph(seed=5)
+    observe = client.node.create_client(ObserveSetting, "fovea/observe")
+
+    def two_stack_setting() -> set:
+        """Reset and build a square two-stack until the fovea offers (2, 6) and (1, 6) (the
+        memory may need another scatter to see the stack)."""
+        for _ in range(3):
+            measurer._build(2)  # reset, then a square stack of two through pick_and_place
+            offered = {(i.state, i.action) for i in client.call(
+                observe, ObserveSetting.Request(max_state=3)).instances}
+            if {(2, 6), (1, 6)} <= offered:
+                return offered
+        pytest.fail(f"the fovea never offered (2, 6) and (1, 6): {sorted(offered)}")
+
+    try:
+        measurer = robot.TruthMeasurer(client, seed=5, max_height=3, block_height_m=0.03)
+        choices, expected = {}, {}
+        for good in (False, True):
+            offered = two_stack_setting()
+            folder = _model(tmp_path, good)
+            plan = StackingSkill(LearnedModel(load_model(str(folder), 3, 6).margin,
+                                              np.arange(5)), target_height=3)
+            best = plan.choose(sorted(offered))  # the node offers pairs in this order too
+            expected[good] = (best.state, best.action)
+            node = SkillNode(context=g.context, parameter_overrides=[
+                Parameter("model", value=str(folder))])
+            g.add(node)
+            action = ActionClient(g.node(f"skill_client_{int(good)}"), BuildStack, "build_stack")
+            assert action.wait_for_server(timeout_sec=30.0)
+            bad_goal = g.result(action.send_goal_async(BuildStack.Goal(target_height=9)))
+            bad = g.result(bad_goal.get_result_async()).result
+            assert bad.error_code == BuildStack.Result.INVALID_GOAL and "9" in bad.reason
+            feedback = []
+            handle = g.result(action.send_goal_async(
+                BuildStack.Goal(target_height=3, max_placements=1),
+                feedback_callback=lambda f, fb=feedback: fb.append(f.feedback)))
+            result = g.result(handle.get_result_async(), 300.0).result
+            assert result.placements == 1 and len(feedback) == 1, result.reason
+            choices[good] = (feedback[0].state, feedback[0].action)
+            assert feedback[0].predicted_success == pytest.approx(best.predicted_success)
+            g.nodes.remove(node)
+            g.executor.remove_node(node)
+            node.destroy_node()
+    finally:
+        g.close()
+    assert choices == expected
+    assert choices[True] == (2, 6)  # a good model on a square two-stack: build on it
+
+
+def test_paper_with_two_seeds_writes_every_file(tmp_path):
+    truth = TruthTable(4, 6)
+    for a in range(2, 7):
+        truth.mark_impossible(0, a)
+    for h in range(4):
+        for a in range(1, 7):
+            if truth.possible[h, a - 1]:
+                for k in range(4):
+                    truth.record(h, a, 1 if (h == 0 or k < a - 2) else -1)
+    truth.save(tmp_path / "truth.json")
+    out = tmp_path / "paper"
+    domain = 120 + os.getpid() % 100
+    code = robot.main(["paper", "--seeds", "2", "--experiments", "3", "--methods", "q1",
+                       "--jobs", "2", "--out", str(out), "--truth", str(tmp_path / "truth.json"),
+                       "--domain-base", str(domain)])
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["experiments"] == 3 and summary["seeds"] == [0, 1]
+    q1 = summary["methods"]["q1"]
+    assert q1["experiments_done"] == [3, 3]
+    assert set(q1["final_kl"]) == {"0", "1", "2", "3"}
+    assert sum(sum(row.values()) for row in q1["actions_tried"].values()) == 6
+    for name in ("q1-s0.csv", "q1-s1.csv", "kl.png", "experience.png", "model.png",
+                 "truth.png", "contact_sheet.png"):
+        assert (out / name).stat().st_size > 0, name
+    rows = (out / "q1-s0.csv").read_text().splitlines()
+    assert len(rows) == 4
+    assert np.isfinite(q1["final_kl_overall"])
+    assert 0.0 <= q1["wasted_share"] <= 1.0
+
+
+@pytest.mark.parametrize("argv", [["paper", "--methods", "q1,nonsense"],
+                                  ["paper", "--seeds", "0"],
+                                  ["skill", "--model", "/nonexistent"]])
+def test_bad_command_lines_are_refused_with_a_reason(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        robot.main(argv)
+    assert exc.value.code == 2
+    assert "katana-robot" in capsys.readouterr().err

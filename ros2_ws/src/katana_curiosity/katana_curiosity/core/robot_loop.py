@@ -1,0 +1,256 @@
+"""The experiment loop on the (simulated or real) arm, without ROS: one experiment after the
+other, the log written before the next starts, and the policy for what goes wrong.
+
+Policy (the paper's robot had a person for this; here it is explicit):
+- An attempt that cannot be completed (no usable instance, no block the arm can move, a
+  missed grasp given up, a slip, a time-out) is *dropped*: nothing is learned or logged, and
+  the reason is counted in the next record's `dropped_before`.
+- After `failures_before_reset` drops in a row, or when a block lies out of reach, or when
+  `stuck_reset` experiments in a row offered only the table, the environment is reset.
+- Every wait watches `stop`, so `stop.set()` ends the loop at once.
+Choices depend only on the seed and on what the environment reports, never on wall time.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from .environment import Environment, PlacementUnavailable
+from .explorer import MODE_NAMES, Explorer, Step
+from .predictors import PredictorBank, QueryRule, one_hot_with_bias
+from .run_record import ExperienceLog, ExperimentRecord, InstanceRecord
+
+
+def robot_bank(max_height: int, n_actions: int, alpha: float, theta: float) -> PredictorBank:
+    """The robot's learner: heights 0..max_height, one-hot actions with a bias."""
+    return PredictorBank(range(max_height + 1), one_hot_with_bias(n_actions),
+                         QueryRule(alpha, theta), n_states=max_height + 2)
+
+
+def feasible_actions(max_height: int, n_actions: int, table_action: int) -> np.ndarray:
+    """(states, actions) table of what can ever occur: on the table only `table_action`."""
+    feasible = np.ones((max_height + 2, n_actions), dtype=bool)
+    if table_action:
+        feasible[0] = False
+        feasible[0, table_action - 1] = True
+    return feasible
+
+
+def set_query_rule(bank: PredictorBank, alpha: float, theta: float) -> None:
+    """Apply a new alpha / theta (Eq. 2) to a learning bank: its confidences and query flags
+    are recomputed, the weights are untouched."""
+    bank.rule = QueryRule(alpha, theta)
+    for height in bank.heights:
+        bank._refresh(int(height))  # the bank's own recomputation of chi and the flags
+
+
+class ExperimentAborted(RuntimeError):
+    """The experiment could not be completed; nothing is learned from it. `reason` is a short
+    code for the counts in summary.json (e.g. grasp_missed, block_slipped, no_verdict)."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+class Unrealisable(PlacementUnavailable):
+    """PlacementUnavailable with a reason code (no_usable_instance, no_block_to_move, ...)."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+class Stopping(RuntimeError):
+    """The loop is stopping: a wait ended early."""
+
+
+def drop_reason(exc: BaseException) -> str:
+    """The reason code of a dropped attempt."""
+    reason = getattr(exc, "reason", None)
+    if reason:
+        return str(reason)
+    if isinstance(exc, PlacementUnavailable):
+        return "placement_unavailable"
+    if isinstance(exc, TimeoutError):
+        return "timeout"
+    return type(exc).__name__
+
+
+#: what to do after a failed pick-and-place, by the result's name (PickAndPlace.Result)
+RETRY_SAME, TRY_ANOTHER, GIVE_UP, UNREALISABLE = "retry", "another", "give_up", "unrealisable"
+#: the result names the policy knows (lower-case constants of PickAndPlace.Result)
+POLICY_RESULTS = ("grasp_missed", "pick_unreachable", "place_unreachable")
+
+
+def after_failed_pick_place(result: str, attempts: int, retries: int) -> str:
+    """The retry policy: a missed grasp is tried again (the paper's robot did), an unreachable
+    pick tries another block, an unreachable place cannot be realised (a planner then tries
+    its next choice); anything else, or `retries` used up, gives the attempt up."""
+    if result == "place_unreachable":
+        return UNREALISABLE
+    if attempts > retries or result not in POLICY_RESULTS:
+        return GIVE_UP
+    return TRY_ANOTHER if result == "pick_unreachable" else RETRY_SAME
+
+
+@dataclass
+class ExecutionRecord:
+    """What the robot environment did for one experiment (returned in `Outcome.record`)."""
+
+    instance: InstanceRecord
+    setting: int
+    available: list[int]
+    moved_block: str
+    attempts: int
+    stage_s: dict[str, float] = field(default_factory=dict)
+    message: Any = None  # the environment's own form of the instance (a FoveaInstance)
+
+
+class RobotEnvironment(Environment, Protocol):
+    """An Environment on an arm: it can be waited on, checked for reach and reset."""
+
+    def wait_until_current(self) -> None:
+        """Block until the environment's picture of the scene includes the last experiment."""
+        ...
+
+    def mark_experiment_done(self) -> None:
+        """Note that an experiment was just published (its effect is awaited next time)."""
+        ...
+
+    def blocks_out_of_reach(self) -> list[str]: ...
+
+    def reset(self) -> str: ...
+
+
+@dataclass(frozen=True)
+class LoopPolicy:
+    max_experiments: int = 0  # in total, over resumes (0: never stop)
+    failures_before_reset: int = 3
+    stuck_reset: int = 3  # experiments in a row offering only the table (0: never)
+    backoff_s: float = 0.2  # pause after a drop, times the drops in a row
+    max_backoff_s: float = 2.0
+
+
+class RobotLoop:
+    """Runs experiments until done or stopped; `on_experiment(record, step)` publishes one."""
+
+    def __init__(
+        self,
+        environment: RobotEnvironment,
+        explorer: Explorer,
+        log: ExperienceLog,
+        policy: LoopPolicy,
+        on_experiment: Callable[[ExperimentRecord, Step], None],
+        logger: Any,
+        stop: threading.Event | None = None,
+        wall_clock: Callable[[], float] = time.time,
+    ) -> None:
+        self.environment, self.explorer, self.log = environment, explorer, log
+        self.policy, self.on_experiment, self.logger = policy, on_experiment, logger
+        self.stop = stop or threading.Event()
+        self.wall_clock = wall_clock
+        self.lock = threading.Lock()  # held while the learner changes (save, live parameters)
+        self.dropped: Counter[str] = Counter()  # since the last logged experiment
+        self.dropped_total: Counter[str] = Counter()  # this session
+        self.resets = 0
+        self._table_only = 0
+        self.done_this_session = 0
+
+    @property
+    def finished_all(self) -> bool:
+        return bool(self.policy.max_experiments) and len(self.log) >= self.policy.max_experiments
+
+    def run(self) -> str:
+        """Experiments until max_experiments or stop; returns why the loop ended."""
+        try:
+            return self._run()
+        except Stopping:
+            return "stopped"
+
+    def _run(self) -> str:
+        failures = 0
+        while not self.stop.is_set():
+            if self.finished_all:
+                return f"done: {len(self.log)} experiments"
+            try:
+                self.run_one()
+                failures = 0
+            except (PlacementUnavailable, ExperimentAborted, TimeoutError) as exc:
+                failures += 1
+                reason = drop_reason(exc)
+                self.dropped[reason] += 1
+                self.dropped_total[reason] += 1
+                self.logger.warning(f"experiment dropped ({reason}, {failures} in a row): {exc}")
+                force = failures >= self.policy.failures_before_reset
+                self.maybe_reset(force=force, why=f"{failures} failed attempts in a row")
+                if force:
+                    failures = 0
+                self.stop.wait(min(self.policy.backoff_s * failures, self.policy.max_backoff_s))
+        return "stopped"
+
+    def run_one(self) -> ExperimentRecord:
+        start = time.perf_counter()
+        self.environment.wait_until_current()
+        current_s = time.perf_counter() - start
+        with self.lock:
+            step = self.explorer.step()
+            execution: ExecutionRecord = step.record
+            execution.stage_s["current_s"] = current_s  # memory caught up with the last one
+            execution.stage_s["experiment_s"] = time.perf_counter() - start
+            record = self.make_record(step, execution)
+            self.log.append(record)  # OSError ends the loop: nothing may go unrecorded
+        self.done_this_session += 1
+        self.dropped.clear()
+        self.environment.mark_experiment_done()
+        self.on_experiment(record, step)
+        # A scene that offers nothing but the table (a stack whose top is beyond reach and
+        # one loose block) cannot teach anything: have it reset, as a person would.
+        self._table_only = self._table_only + 1 if execution.available == [0] else 0
+        limit = self.policy.stuck_reset
+        self.maybe_reset(force=bool(limit) and self._table_only >= limit,
+                         why="only the table offered")
+        return record
+
+    def make_record(self, step: Step, execution: ExecutionRecord) -> ExperimentRecord:
+        bank = self.explorer.bank
+        return ExperimentRecord(
+            index=len(self.log),
+            state=int(step.state),
+            action=int(step.action) + 1,
+            label=int(step.label),
+            mode=MODE_NAMES[step.mode],
+            setting=int(execution.setting),
+            available=[int(s) for s in execution.available],
+            moved_block=execution.moved_block,
+            attempts=int(execution.attempts),
+            instance=execution.instance,
+            margin_before=float(step.margin_before),
+            confidence_before=float(step.chi_before),
+            weights_before=[] if step.weights_before is None else
+            [float(v) for v in step.weights_before],
+            weights_after=[float(v) for v in bank.weights(step.state)],
+            stage_s={k: round(float(v), 4) for k, v in execution.stage_s.items()},
+            dropped_before=dict(sorted(self.dropped.items())),
+            wall_time=float(self.wall_clock()),
+        )
+
+    def maybe_reset(self, force: bool = False, why: str = "repeated failures") -> None:
+        away = self.environment.blocks_out_of_reach()
+        if not away and not force:
+            return
+        self._table_only = 0
+        reason = f"blocks out of reach: {', '.join(away)}" if away else why
+        try:
+            message = self.environment.reset()
+            self.resets += 1
+            self.logger.info(f"reset the world ({reason}): {message}")
+        except (TimeoutError, ExperimentAborted) as exc:
+            self.logger.warning(f"could not reset the world ({reason}): {exc}")

@@ -1,0 +1,411 @@
+"""The robot experiment measured (paper section 3.3): runs over seeds against the measured truth.
+
+ROS-free. `analyse_run` replays one run's experience log through a fresh learner and reads, after
+every experiment, the KL divergence per height from the measured truth (core.robot_truth), the
+direct and planned experience per height, and which experiments were wasted: made on a pair the
+query condition already called known, and leading nowhere (the block fell, or the stack it grew
+offers no pair still unknown). `summarise` folds the runs of each method into summary.json;
+the figure functions draw the paper's Figures 4/5, 13 and 10-12 (contact sheet) for the robot.
+"""
+
+from __future__ import annotations
+
+import csv
+import statistics
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import cv2  # noqa: E402
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .predictors import PredictorBank, QueryRule, one_hot_with_bias  # noqa: E402
+from .robot_truth import TruthTable, kl_to_truth  # noqa: E402
+
+#: the paper's claim of a usable model "within about 30 interactions" (section 3.3)
+USABLE_AFTER = 30
+
+
+@dataclass
+class RunAnalysis:
+    """One run replayed: per-experiment KL per height, experience counts and waste."""
+
+    method: str
+    seed: int
+    kl: np.ndarray  # (experiments, heights) KL after each experiment; NaN where unmeasured
+    states: np.ndarray  # height placed upon, per experiment
+    actions: np.ndarray  # 1-based action, per experiment
+    labels: np.ndarray  # +1 / -1
+    modes: list[str]
+    known_before: np.ndarray  # bool: the query condition called the pair known beforehand
+    led_nowhere: np.ndarray  # bool: fell, or grew a stack with no unknown pair left
+    s_per_experiment: float | None
+    final_margin: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))
+    final_chi: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))
+
+    @property
+    def wasted(self) -> np.ndarray:
+        return self.known_before & self.led_nowhere
+
+    @property
+    def highest_stack(self) -> int:
+        grown = self.states[self.labels > 0] + 1
+        return int(grown.max()) if len(grown) else 0
+
+    def actions_tried(self, n_actions: int, max_height: int) -> np.ndarray:
+        counts = np.zeros((max_height + 1, n_actions), dtype=int)
+        for s, a in zip(self.states, self.actions, strict=True):
+            if 0 <= s <= max_height:
+                counts[s, a - 1] += 1
+        return counts
+
+
+def analyse_run(
+    records: Sequence,
+    truth: TruthTable,
+    method: str,
+    seed: int,
+    n_actions: int = 6,
+    max_height: int = 3,
+    alpha: float = 1.0,
+    theta: float = 0.1,
+) -> RunAnalysis:
+    """Replay `records` (ExperimentRecord-like: state, action, label, mode, wall_time) in order
+    through a fresh learner with the run's query rule, measuring after every update."""
+    bank = PredictorBank(range(max_height + 1), one_hot_with_bias(n_actions),
+                         QueryRule(alpha, theta), n_states=max_height + 2)
+    heights = min(truth.n_states, max_height + 1)
+    kl = np.full((len(records), heights), np.nan)
+    known = np.zeros(len(records), dtype=bool)
+    nowhere = np.zeros(len(records), dtype=bool)
+    table_only = np.zeros((max_height + 2, n_actions), dtype=bool)
+    table_only[0, 1:] = True  # never offered: on the table only action 1
+    for i, r in enumerate(records):
+        s, a, label = int(r.state), int(r.action), int(r.label)
+        known[i] = not bool(bank.unknown[s, a - 1])
+        bank.update(s, a - 1, float(label))
+        if label < 0:
+            nowhere[i] = True
+        else:
+            above = s + 1
+            offered_unknown = bank.unknown[above] & ~table_only[above] if above <= max_height \
+                else np.zeros(n_actions, dtype=bool)
+            nowhere[i] = not offered_unknown.any()
+        for h, value in kl_to_truth(truth, bank.margin[:heights]).items():
+            kl[i, h] = value
+    times = [float(r.wall_time) for r in records if getattr(r, "wall_time", 0.0)]
+    gaps = [b - a for a, b in zip(times, times[1:], strict=False) if b >= a]
+    return RunAnalysis(
+        method=method, seed=seed, kl=kl,
+        states=np.array([int(r.state) for r in records], dtype=int),
+        actions=np.array([int(r.action) for r in records], dtype=int),
+        labels=np.array([int(r.label) for r in records], dtype=int),
+        modes=[str(r.mode) for r in records], known_before=known, led_nowhere=nowhere,
+        s_per_experiment=statistics.median(gaps) if gaps else None,
+        final_margin=bank.margin.copy(), final_chi=bank.chi.copy(),
+    )
+
+
+def write_run_csv(analysis: RunAnalysis, path: Path) -> None:
+    """One row per experiment: what was done, its outcome, and the KL per height after it."""
+    heights = analysis.kl.shape[1]
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(["experiment", "mode", "state", "action", "label", "known_before",
+                    "led_nowhere", *(f"kl_h{h}" for h in range(heights)), "kl_overall"])
+        for i in range(len(analysis.states)):
+            row = analysis.kl[i]
+            w.writerow([i, analysis.modes[i], int(analysis.states[i]), int(analysis.actions[i]),
+                        int(analysis.labels[i]), int(analysis.known_before[i]),
+                        int(analysis.led_nowhere[i]),
+                        *("" if np.isnan(v) else f"{v:.6g}" for v in row),
+                        f"{np.nanmean(row):.6g}" if np.isfinite(row).any() else ""])
+
+
+def _round(x: float | None, digits: int = 4) -> float | None:
+    return None if x is None or not np.isfinite(x) else round(float(x), digits)
+
+
+def summarise(
+    analyses: Sequence[RunAnalysis],
+    experiments: int,
+    seeds: Sequence[int],
+    truth_path: str,
+    n_actions: int = 6,
+    max_height: int = 3,
+) -> dict:
+    """summary.json of issue 9: per method the final KL per height and overall (means over the
+    seeds), the actions tried per height (summed over the seeds), the highest stack (over the
+    seeds), seconds per experiment (median of the runs' medians), and the wasted share."""
+    methods: dict[str, dict] = {}
+    for method in dict.fromkeys(a.method for a in analyses):
+        runs = [a for a in analyses if a.method == method]
+        finals = np.array([r.kl[-1] if len(r.kl) else np.full(max_height + 1, np.nan)
+                           for r in runs])
+        heights = finals.shape[1]
+        final_kl = {str(h): _round(np.nanmean(finals[:, h])) if np.isfinite(finals[:, h]).any()
+                    else None for h in range(heights)}
+        per_run_overall = [float(np.nanmean(f)) for f in finals if np.isfinite(f).any()]
+        tried = sum(r.actions_tried(n_actions, max_height) for r in runs)
+        at_usable = [float(np.nanmean(r.kl[USABLE_AFTER - 1])) for r in runs
+                     if len(r.kl) >= USABLE_AFTER and np.isfinite(r.kl[USABLE_AFTER - 1]).any()]
+        spe = [r.s_per_experiment for r in runs if r.s_per_experiment is not None]
+        done = sum(len(r.states) for r in runs)
+        wasted = sum(int(r.wasted.sum()) for r in runs)
+        methods[method] = {
+            "final_kl": final_kl,
+            "final_kl_overall": _round(statistics.mean(per_run_overall))
+            if per_run_overall else None,
+            "actions_tried": {str(h): {str(a + 1): int(tried[h, a]) for a in range(n_actions)}
+                              for h in range(max_height + 1)},
+            "highest_stack": max((r.highest_stack for r in runs), default=0),
+            "s_per_experiment": _round(statistics.median(spe), 3) if spe else None,
+            "wasted_share": _round(wasted / done) if done else None,
+            "wasted_experiments": wasted,
+            f"kl_overall_after_{USABLE_AFTER}": _round(statistics.mean(at_usable))
+            if at_usable else None,
+            "experiments_done": [len(r.states) for r in runs],
+            "highest_stack_per_seed": [r.highest_stack for r in runs],
+            "final_kl_overall_per_seed": [_round(v) for v in per_run_overall],
+        }
+    return {"experiments": experiments, "seeds": list(seeds), "truth": truth_path,
+            "methods": methods}
+
+
+# -- figures -------------------------------------------------------------------------------
+
+
+def _mean_curve(runs: Sequence[RunAnalysis], h: int) -> tuple[np.ndarray, np.ndarray]:
+    n = min(len(r.kl) for r in runs)
+    stack = np.array([r.kl[:n, h] for r in runs])
+    with warnings.catch_warnings():  # heights never measured are all-NaN columns
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmean(stack, axis=0), np.nanstd(stack, axis=0)
+
+
+def kl_figure(analyses: Sequence[RunAnalysis], path: Path) -> None:
+    """KL(measured truth || learned) per height over experiments, mean +- sd over seeds, one
+    line per method (cf. Figures 5 and 9)."""
+    methods = list(dict.fromkeys(a.method for a in analyses))
+    heights = analyses[0].kl.shape[1]
+    fig, axes = plt.subplots(1, heights, figsize=(3.3 * heights, 3.2), squeeze=False,
+                             sharey=True)
+    for h, ax in enumerate(axes[0]):
+        for k, method in enumerate(methods):
+            runs = [a for a in analyses if a.method == method and len(a.kl)]
+            if not runs:
+                continue
+            mean, sd = _mean_curve(runs, h)
+            x = np.arange(1, len(mean) + 1)
+            ax.plot(x, mean, color=f"C{k}", label=f"{method} ({len(runs)} seeds)")
+            ax.fill_between(x, mean - sd, mean + sd, color=f"C{k}", alpha=0.15)
+        ax.axvline(USABLE_AFTER, color="grey", lw=0.6, ls=":")
+        ax.set_title(f"height {h}", fontsize=9)
+        ax.set_xlabel("experiment")
+        ax.grid(alpha=0.3)
+    axes[0, 0].set_ylabel("KL(measured truth || learned)")
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def experience_figure(analyses: Sequence[RunAnalysis], path: Path, method: str) -> None:
+    """Cumulative direct (query) and planned experience per height, mean over seeds (cf.
+    Figure 4)."""
+    runs = [a for a in analyses if a.method == method and len(a.states)]
+    if not runs:
+        return
+    n = min(len(r.states) for r in runs)
+    heights = runs[0].kl.shape[1]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
+    x = np.arange(1, n + 1)
+    for ax, mode in zip(axes, ("query", "plan"), strict=True):
+        for h in range(heights):
+            curves = np.array([np.cumsum([(m == mode) and s == h for m, s in
+                                          zip(r.modes[:n], r.states[:n], strict=True)])
+                               for r in runs])
+            ax.plot(x, curves.mean(axis=0), label=f"height {h}")
+        ax.set_title(("direct" if mode == "query" else "planned") + f" exploration ({method}, "
+                     f"mean of {len(runs)} seeds)", fontsize=9)
+        ax.set_xlabel("experiment")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("cumulative experience")
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def model_figure(analysis: RunAnalysis, truth: TruthTable, path: Path) -> None:
+    """The learned model of one run with its confidence band per height, the measured truth
+    (as a margin 2p - 1, with its Wilson interval) beside it (cf. Figure 13)."""
+    from .robot_truth import wilson_interval
+
+    heights = analysis.kl.shape[1]
+    n_actions = analysis.final_margin.shape[1]
+    actions = np.arange(1, n_actions + 1)
+    counts = analysis.actions_tried(n_actions, heights - 1)
+    p = truth.p_stable()
+    fig, axes = plt.subplots(1, heights, figsize=(3.2 * heights, 3.4), squeeze=False)
+    for h, ax in enumerate(axes[0]):
+        # pairs that cannot occur (on the table only action 1) are not drawn
+        occurs = truth.possible[h] if h < truth.n_states else np.ones(n_actions, dtype=bool)
+        margin = np.where(occurs, analysis.final_margin[h], np.nan)
+        chi = np.where(occurs, analysis.final_chi[h], np.nan)
+        ax.fill_between(actions, margin - chi, margin + chi, color="lightsteelblue",
+                        label="learned +- chi")
+        ax.plot(actions, margin, "b.-", label="learned margin")
+        labelled = False
+        for a in range(n_actions):
+            if not occurs[a]:
+                ax.text(a + 1, 0.0, "cannot occur", ha="center", va="center", fontsize=6,
+                        color="grey", rotation=90)
+                continue
+            if h < truth.n_states and np.isfinite(p[h, a]):
+                lo, hi = wilson_interval(int(truth.stayed[h, a]), int(truth.trials[h, a]))
+                ax.errorbar(a + 1.12, 2 * p[h, a] - 1, yerr=[[2 * (p[h, a] - lo)],
+                            [2 * (hi - p[h, a])]], fmt="s", color="k", ms=3, lw=0.8,
+                            label=None if labelled else "measured truth (Wilson 95 %)")
+                labelled = True
+            ax.annotate(str(int(counts[h, a])), (a + 1, -1.45), ha="center", fontsize=7,
+                        color="grey")
+        ax.axhline(0, color="grey", lw=0.5)
+        ax.set_ylim(-1.6, 1.6)
+        ax.set_xticks(actions)
+        ax.set_title(f"height {h}", fontsize=9)
+        ax.set_xlabel("action (bits on + 1)")
+    axes[0, 0].set_ylabel("margin (+1 stays, -1 falls)")
+    legend: dict = {}
+    for ax in axes[0]:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            legend.setdefault(label, handle)
+    fig.legend(list(legend.values()), list(legend), fontsize=7, loc="lower center", ncol=3)
+    fig.suptitle(f"Learned model, {analysis.method} seed {analysis.seed}, after "
+                 f"{len(analysis.states)} experiments (grey: experiments per action)",
+                 fontsize=10)
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def truth_figure(truth: TruthTable, path: Path) -> None:
+    """Measured P(stays) per height and action with Wilson 95 % intervals; impossible pairs
+    marked as such."""
+    from .robot_truth import wilson_interval
+
+    p = truth.p_stable()
+    fig, axes = plt.subplots(1, truth.n_states, figsize=(3.0 * truth.n_states, 3.0),
+                             squeeze=False, sharey=True)
+    actions = np.arange(1, truth.n_actions + 1)
+    for h, ax in enumerate(axes[0]):
+        for a in range(truth.n_actions):
+            if not truth.possible[h, a]:
+                ax.text(a + 1, 0.5, "cannot\noccur", ha="center", va="center", fontsize=6,
+                        color="grey", rotation=90)
+                continue
+            n, k = int(truth.trials[h, a]), int(truth.stayed[h, a])
+            if n == 0:
+                ax.text(a + 1, 0.5, "not\nmeasured", ha="center", va="center", fontsize=6,
+                        color="tab:orange", rotation=90)
+                continue
+            lo, hi = wilson_interval(k, n)
+            ax.bar(a + 1, p[h, a], color="tab:green", alpha=0.6)
+            ax.errorbar(a + 1, p[h, a], yerr=[[p[h, a] - lo], [hi - p[h, a]]], color="k",
+                        capsize=2, lw=0.8)
+            ax.annotate(f"{k}/{n}", (a + 1, 1.04), ha="center", fontsize=6)
+        ax.set_ylim(0, 1.12)
+        ax.set_xticks(actions)
+        ax.set_title(f"height {h}", fontsize=9)
+        ax.set_xlabel("action (bits on + 1)")
+    axes[0, 0].set_ylabel("P(block stays), Wilson 95 %")
+    fig.suptitle("Measured ground truth of the simulated world", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+#: the paper's four columns (Figures 10-12)
+CONTACT_COLUMNS = ("fovea search", "pick", "place", "observation")
+
+
+def contact_sheet(rows: Sequence[Mapping], path: Path, width_px: int = 240) -> None:
+    """Rows of {"caption": str, "images": [rgb|None] * 4, "label": +1|-1}: one experiment per
+    row, the paper's four columns, each image scaled to `width_px`; a missing frame is grey."""
+    tiles = []
+    header = np.full((28, width_px * 4 + 150, 3), 255, np.uint8)
+    for k, name in enumerate(CONTACT_COLUMNS):
+        cv2.putText(header, name, (150 + k * width_px + 8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55,
+                    (0, 0, 0), 1, cv2.LINE_AA)
+    tiles.append(header)
+    for row in rows:
+        cells = []
+        height = None
+        for img in row["images"]:
+            if img is None:
+                continue
+            height = int(round(img.shape[0] * width_px / img.shape[1]))
+            break
+        height = height or int(width_px * 0.75)
+        for img in row["images"]:
+            if img is None:
+                cells.append(np.full((height, width_px, 3), 160, np.uint8))
+            else:
+                cells.append(cv2.resize(np.ascontiguousarray(img), (width_px, height),
+                                        interpolation=cv2.INTER_AREA))
+        side = np.full((height, 150, 3), 255, np.uint8)
+        colour = (0, 150, 0) if row.get("label", 0) > 0 else (200, 0, 0)
+        for j, line in enumerate(str(row["caption"]).split("\n")):
+            cv2.putText(side, line, (6, 22 + 20 * j), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
+                        colour if j == len(str(row["caption"]).split("\n")) - 1 else (0, 0, 0),
+                        1, cv2.LINE_AA)
+        tiles.append(np.hstack([side, *cells]))
+    sheet = np.vstack(tiles)
+    cv2.imwrite(str(path), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
+
+
+# -- the truth measurement: which outcome a placement had ----------------------------------
+
+
+@dataclass(frozen=True)
+class TrueBlock:
+    """What the outcome needs of one block of sim/ground_truth."""
+
+    id: str
+    x: float
+    y: float
+    z: float
+    level: int
+
+
+def placement_stayed(before: Sequence[TrueBlock], after: Sequence[TrueBlock], placed: str,
+                     stack: Sequence[str], moved_tol_m: float = 0.01) -> bool:
+    """The placed block rests on top of the stack it was placed upon (level height + 1), and
+    the stack's blocks are still where they were: the paper's 'stable'. On the table (empty
+    stack) a placement stays when the block lies flat at level 1."""
+    now = {b.id: b for b in after}
+    then = {b.id: b for b in before}
+    block = now.get(placed)
+    if block is None or block.level != len(stack) + 1:
+        return False
+    for bid in stack:
+        a, b = then.get(bid), now.get(bid)
+        if a is None or b is None or b.level != a.level:
+            return False
+        if np.hypot(b.x - a.x, b.y - a.y) > moved_tol_m or abs(b.z - a.z) > moved_tol_m:
+            return False
+    return True
+
+
+def truth_schedule(trials: int, max_height: int, n_actions: int, table_action: int = 1
+                   ) -> list[tuple[int, int]]:
+    """The (height, action) pairs to measure, `trials` rounds of every pair that can occur,
+    round by round (so an interrupted measurement is balanced)."""
+    pairs = [(0, table_action)] + [(h, a) for h in range(1, max_height + 1)
+                                   for a in range(1, n_actions + 1)]
+    return [pair for _ in range(trials) for pair in pairs]

@@ -1,0 +1,449 @@
+"""The explorer's environment on the arm, over ROS 2: fovea services, pick-and-place, judge.
+
+Runs on the curiosity node's experiment thread. Every call waits on a future with a bounded
+wait (katana_common.futures) while the node's executor spins elsewhere, and every wait ends at
+once when the node stops. Configuration comes in as `EnvironmentConfig`; nothing here reads a
+node parameter.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from action_msgs.msg import GoalStatus
+from katana_common.futures import Stopped, wait_for_future
+from katana_common.qos import JOINT_STATE_QOS, STATE_QOS
+from katana_interfaces.action import PickAndPlace
+from katana_interfaces.msg import BlockArray, FoveaInstance
+from katana_interfaces.srv import FindPlacement, JudgePlacement, ObserveSetting, ResetWorld
+from rclpy.action import ActionClient
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
+
+from .core.block_choice import BlockView, PickReach, choose_block_to_move
+from .core.environment import Outcome, Setting
+from .core.robot_loop import (
+    GIVE_UP,
+    POLICY_RESULTS,
+    TRY_ANOTHER,
+    UNREALISABLE,
+    ExecutionRecord,
+    ExperimentAborted,
+    Stopping,
+    Unrealisable,
+    after_failed_pick_place,
+)
+from .core.run_record import InstanceRecord
+
+#: block memory's output: the blocks it knows, with levels and poses
+BLOCKS_TOPIC = "memory/blocks"
+RESET_TYPE = "katana_interfaces/srv/ResetWorld"
+#: std_msgs/Bool, transient-local: true while the arm is connected and calibrated (driver)
+ARM_READY_TOPIC = "arm_ready"
+_RESULT = PickAndPlace.Result
+
+
+@dataclass(frozen=True)
+class EnvironmentConfig:
+    n_actions: int
+    max_height: int
+    grasp_retries: int
+    reach: PickReach
+    service_timeout_s: float = 10.0
+    action_timeout_s: float = 120.0
+    blocks_timeout_s: float = 10.0
+    reset_service: str = ""  # "": the one ResetWorld service the backend offers
+
+
+class RobotEnvironment:
+    """Environment (core.environment) and RobotEnvironment (core.robot_loop) on the graph."""
+
+    def __init__(self, node: Node, config: EnvironmentConfig, stop: threading.Event,
+                 callback_group=None) -> None:
+        self.node, self.config, self.stop = node, config, stop
+        kw = {"callback_group": callback_group}
+        self.observe_client = node.create_client(ObserveSetting, "fovea/observe", **kw)
+        self.find_client = node.create_client(FindPlacement, "fovea/find_placement", **kw)
+        self.judge_client = node.create_client(JudgePlacement, "perception/judge_placement", **kw)
+        self.pick_place = ActionClient(node, PickAndPlace, "pick_and_place", **kw)
+        self.reset_client = None
+        self._callback_group = callback_group
+        self._cv = threading.Condition()
+        self._blocks: BlockArray | None = None
+        self._blocks_count = 0
+        self._count_at_done: int | None = None
+        self._done_ns = 0
+        self._joint_states = 0
+        self._arm_ready: bool | None = None  # the driver's arm_ready; None: none heard yet
+        node.create_subscription(BlockArray, BLOCKS_TOPIC, self.on_blocks, STATE_QOS, **kw)
+        node.create_subscription(JointState, "joint_states", self._on_joint_state,
+                                 JOINT_STATE_QOS, **kw)
+        node.create_subscription(Bool, ARM_READY_TOPIC, self._on_arm_ready, STATE_QOS, **kw)
+        self.instances: list[FoveaInstance] = []
+        #: the paper's setting counter i: settings observed in this run (resumes set it)
+        self.settings_observed = 0
+        self.observe_s = 0.0
+        # blocks the arm could not pick, with where they were: skipped until they move
+        self.unpickable: dict[str, tuple[float, float]] = {}
+
+    # -- subscriptions -------------------------------------------------------------------
+
+    def on_blocks(self, msg: BlockArray) -> None:
+        with self._cv:
+            self._blocks = msg
+            self._blocks_count += 1
+            self._cv.notify_all()
+
+    def _on_arm_ready(self, msg: Bool) -> None:
+        with self._cv:
+            self._arm_ready = bool(msg.data)
+            self._cv.notify_all()
+
+    def _on_joint_state(self, _msg: JointState) -> None:
+        with self._cv:
+            self._joint_states += 1
+            self._cv.notify_all()
+
+    def _wait(self, condition, timeout_s: float, what: str) -> None:
+        """Wait on the condition variable until `condition()`; Stopping / TimeoutError."""
+        deadline = time.monotonic() + timeout_s
+        with self._cv:
+            while not condition():
+                if self.stop.is_set():
+                    raise Stopping(f"stopped while waiting for {what}")
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError(f"no {what} within {timeout_s:.1f} s")
+                self._cv.wait(min(left, 0.05))
+
+    def wait_for_blocks(self, newer_than: int | None = None) -> BlockArray:
+        """The latest memory/blocks, or the first one after message number `newer_than`."""
+        self._wait(lambda: self._blocks is not None and (
+            newer_than is None or self._blocks_count > newer_than),
+            self.config.blocks_timeout_s, f"fresh {BLOCKS_TOPIC}")
+        return self._blocks
+
+    def wait_for_scene_after(self, parked_ns: int) -> BlockArray:
+        """The first memory/blocks built from an image taken after the arm parked (at
+        `parked_ns` on this node's clock), so the judge sees the outcome, as the paper's robot
+        did: one whose stamp (its image's time) is past `parked_ns`, or the second one from
+        now (one may come from an image captured during the last motion, the second cannot),
+        whichever comes first. The stamp rule needs the node's clock to be the camera's."""
+        after = parked_ns + _STAMP_MARGIN_NS
+        newer_than = self.blocks_count() + 1
+        self._wait(lambda: self._blocks_count > newer_than or (
+            self._blocks_count > newer_than - 1 and _stamp_ns(self._blocks) >= after),
+            self.config.blocks_timeout_s, f"{BLOCKS_TOPIC} after the arm parked")
+        return self._blocks
+
+    def blocks_count(self) -> int:
+        with self._cv:
+            return self._blocks_count
+
+    # -- readiness -----------------------------------------------------------------------
+
+    def wait_until_ready(self, timeout_s: float, log_every_s: float = 5.0) -> None:
+        """Until the arm is ready (its arm_ready is true where a backend publishes one, as the
+        driver does once connected and calibrated; else joint_states arrive), the action and
+        services answer and the memory has published. Logged while waiting; TimeoutError
+        after `timeout_s`."""
+        deadline = time.monotonic() + timeout_s
+        logger = self.node.get_logger()
+        while True:
+            missing = self._missing()
+            if not missing:
+                return
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TimeoutError(f"the graph is not ready after {timeout_s:.1f} s: still "
+                                   f"waiting for {', '.join(missing)}")
+            logger.info(f"waiting for {', '.join(missing)} ({left:.0f} s left)",
+                        throttle_duration_sec=log_every_s)
+            if self.stop.wait(min(0.1, left)):
+                raise Stopping("stopped while waiting for the graph")
+
+    def _missing(self) -> list[str]:
+        missing = []
+        with self._cv:
+            if not self._joint_states:
+                missing.append("joint_states")
+            if self._blocks is None:
+                missing.append(BLOCKS_TOPIC)
+            arm_ready = self._arm_ready
+        if arm_ready is not True and (
+                arm_ready is False or self.node.count_publishers(ARM_READY_TOPIC) > 0):
+            missing.append(f"{ARM_READY_TOPIC} (the driver connected and calibrated)")
+        if not self.pick_place.server_is_ready():
+            missing.append("action pick_and_place")
+        for client in (self.observe_client, self.find_client, self.judge_client):
+            if not client.service_is_ready():
+                missing.append(f"service {client.srv_name}")
+        if self._reset() is None:
+            found = self._reset_candidates()
+            missing.append("a ResetWorld service" if len(found) < 2 else
+                           f"one ResetWorld service, not {len(found)} ({', '.join(found)}): "
+                           "set reset_service")
+        return missing
+
+    def _reset_candidates(self) -> list[str]:
+        return sorted(n for n, types in self.node.get_service_names_and_types()
+                      if RESET_TYPE in types)
+
+    def _reset(self):
+        """The reset client: the configured name, or the backend's one ResetWorld service."""
+        if self.reset_client is None:
+            name = self.config.reset_service
+            if not name:
+                found = self._reset_candidates()
+                if len(found) != 1:
+                    return None
+                name = found[0]
+            self.reset_client = self.node.create_client(
+                ResetWorld, name, callback_group=self._callback_group)
+        return self.reset_client if self.reset_client.service_is_ready() else None
+
+    # -- the protocol --------------------------------------------------------------------
+
+    def wait_until_current(self) -> None:
+        """Until the memory has taken the last experiment in and seen an image after it.
+
+        The memory answers an experience at once (placing the moved block where it was put)
+        and refines that pose from the next image; the fovea builds its scene from whichever
+        it has when asked. Observing only after an image taken once the experience was out
+        makes the scene, and so the next choice, independent of thread timing: a message
+        stamped after the experience (or, if the stamps are on another clock, the fourth).
+        """
+        if self._count_at_done is None:
+            self.wait_for_blocks()
+            return
+        count, after = self._count_at_done, self._done_ns + _STAMP_MARGIN_NS
+        self._wait(lambda: self._blocks_count > count + 1 and (
+            _stamp_ns(self._blocks) >= after or self._blocks_count > count + 3),
+            self.config.blocks_timeout_s, f"{BLOCKS_TOPIC} after the last experiment")
+
+    def mark_experiment_done(self) -> None:
+        self._count_at_done = self.blocks_count()
+        self._done_ns = self.node.get_clock().now().nanoseconds
+
+    def observe(self) -> Setting:
+        start = time.perf_counter()
+        request = ObserveSetting.Request(max_state=self.config.max_height)
+        self.settings_observed += 1
+        response = self._call(self.observe_client, request)
+        self.observe_s = time.perf_counter() - start
+        if not response.success:
+            raise Unrealisable("fovea_failed", f"fovea/observe: {response.message}")
+        usable = [inst for inst in response.instances
+                  if 0 <= inst.state <= self.config.max_height
+                  and 1 <= inst.action <= self.config.n_actions]
+        # Available means executable (paper 2.2: availability comes from the known blocks): a
+        # placement needs a block the arm can pick that is not part of the target stack.
+        blocks = self.wait_for_blocks()
+        usable = [inst for inst in usable if self._choose_block(blocks, inst, set())]
+        if not usable:
+            raise Unrealisable("no_usable_instance",
+                               "fovea/observe listed no instance with a block to move")
+        self.instances = usable
+        states = np.array([inst.state for inst in usable])
+        actions = np.array([inst.action - 1 for inst in usable])
+        return Setting.from_pairs(states, actions)
+
+    def execute(self, state: int, action: int, index: int | None = None) -> Outcome:
+        stages: dict[str, float] = {"observe_s": self.observe_s}
+        t = time.perf_counter()
+        instance = self.instances[index] if index is not None else self._find(state, action)
+        stages["find_s"] = time.perf_counter() - t
+        if self._choose_block(self.wait_for_blocks(), instance, set()) is None:
+            # before anything is judged or moved, so that a planner tries its next choice
+            raise Unrealisable("no_block_to_move",
+                               "no accessible block to move for this placement")
+
+        t = time.perf_counter()
+        self._judge(JudgePlacement.Request.PHASE_BEFORE, instance, "")
+        stages["judge_before_s"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        moved, attempts = self._pick_and_place(instance)
+        stages["pick_place_s"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        self.wait_for_scene_after(self.node.get_clock().now().nanoseconds)
+        stages["settle_s"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        label = self._judge(JudgePlacement.Request.PHASE_AFTER, instance, moved)
+        stages["judge_s"] = time.perf_counter() - t
+        if label not in (-1, 1):
+            raise ExperimentAborted("no_verdict", f"the judge gave no verdict (label {label})")
+        available = sorted({int(i.state) for i in self.instances})
+        record = ExecutionRecord(_instance_record(instance), self.settings_observed, available,
+                                 moved, attempts, stages, instance)
+        return Outcome(label, record)
+
+    # -- steps ---------------------------------------------------------------------------
+
+    def _call(self, client, request):
+        timeout = self.config.service_timeout_s
+        self._await_server(client.service_is_ready, f"service {client.srv_name}")
+        try:
+            return wait_for_future(client.call_async(request), timeout,
+                                   f"service {client.srv_name}", stop=self.stop)
+        except Stopped as exc:
+            raise Stopping(str(exc)) from None
+
+    def _await_server(self, is_ready, what: str) -> None:
+        """Until `is_ready()`; TimeoutError after service_timeout_s, Stopping on stop."""
+        deadline = time.monotonic() + self.config.service_timeout_s
+        while not is_ready():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{what} is not available")
+            if self.stop.wait(0.02):
+                raise Stopping(f"stopped while waiting for {what}")
+
+    def _find(self, state: int, action: int) -> FoveaInstance:
+        # plain ints: the generated C conversion aborts the process on a numpy integer
+        request = FindPlacement.Request(state=int(state), action=int(action) + 1)
+        response = self._call(self.find_client, request)
+        if not response.found:
+            raise Unrealisable("no_placement", f"no fovea location realises (s={state}, "
+                               f"a={action + 1}): {response.message}")
+        return response.instance
+
+    def _judge(self, phase: int, instance: FoveaInstance, placed: str) -> int:
+        request = JudgePlacement.Request(phase=phase, instance=instance, placed_block=placed)
+        response = self._call(self.judge_client, request)
+        if not response.success:
+            raise ExperimentAborted("judge_failed",
+                                    f"perception/judge_placement: {response.message}")
+        return int(response.label)
+
+    def _pick_and_place(self, instance: FoveaInstance) -> tuple[str, int]:
+        """Move the chosen block; a missed grasp is retried (the paper resets and tries again)."""
+        excluded: set[str] = set()
+        attempts = 0
+        while True:
+            attempts += 1
+            block = self._choose_block(self.wait_for_blocks(), instance, excluded)
+            if block is None:
+                raise Unrealisable("no_block_to_move",
+                                   "no accessible block to move for this placement")
+            goal = PickAndPlace.Goal(block_id=block.id, pick=block.pose, block_size=block.size,
+                                     place=instance.placement)
+            result = self._send_pick_place(goal)
+            if result.success:
+                return block.id, attempts
+            name = _code_name(result.error_code)
+            reason = f"pick_and_place of {block.id}: {result.message} ({name})"
+            action = after_failed_pick_place(name, attempts, self.config.grasp_retries)
+            if action == UNREALISABLE:
+                raise Unrealisable(name, reason)
+            if action in (TRY_ANOTHER, GIVE_UP) and name in POLICY_RESULTS:
+                # a block the arm cannot pick, or keeps missing, is left until it moves
+                self.unpickable[block.id] = (block.pose.position.x, block.pose.position.y)
+                excluded.add(block.id)
+            if action == GIVE_UP:
+                raise ExperimentAborted(name, f"{reason}; gave up after {attempts} attempts")
+            self.node.get_logger().warning(f"{reason}; retrying")
+
+    def _still_unpickable(self, block) -> bool:
+        where = self.unpickable.get(block.id)
+        if where is None:
+            return False
+        if np.hypot(block.pose.position.x - where[0], block.pose.position.y - where[1]) < 0.005:
+            return True
+        del self.unpickable[block.id]  # it moved: worth trying again
+        return False
+
+    def _choose_block(self, blocks: BlockArray, instance: FoveaInstance, excluded: set[str]):
+        views = [BlockView(b.id, b.pose.position.x, b.pose.position.y, b.on_top, b.level)
+                 for b in blocks.blocks if b.id not in excluded and not self._still_unpickable(b)]
+        reach = self.config.reach
+        choice = choose_block_to_move(
+            views, (instance.placement.position.x, instance.placement.position.y),
+            list(instance.support_ids), lambda v: reach.can_pick(v.x, v.y, v.level))
+        if choice is None:
+            return None
+        return next(b for b in blocks.blocks if b.id == choice.id)
+
+    def _send_pick_place(self, goal: PickAndPlace.Goal):
+        timeout = self.config.service_timeout_s
+        self._await_server(self.pick_place.server_is_ready, "action pick_and_place")
+        try:
+            handle = wait_for_future(self.pick_place.send_goal_async(goal), timeout,
+                                     "pick_and_place goal", stop=self.stop)
+            if not handle.accepted:
+                raise ExperimentAborted("goal_rejected", "pick_and_place rejected the goal")
+            try:
+                answer = wait_for_future(handle.get_result_async(), self.config.action_timeout_s,
+                                         "pick_and_place result", stop=self.stop)
+            except (TimeoutError, Stopped):
+                _cancel(handle)  # the executor stops the arm on a cancel
+                raise
+        except Stopped as exc:
+            raise Stopping(str(exc)) from None
+        if answer.status not in (GoalStatus.STATUS_SUCCEEDED, GoalStatus.STATUS_ABORTED):
+            raise ExperimentAborted("goal_" + _status_name(answer.status),
+                                    f"pick_and_place ended with status "
+                                    f"{_status_name(answer.status)}: {answer.result.message}")
+        return answer.result
+
+    # -- resets --------------------------------------------------------------------------
+
+    def blocks_out_of_reach(self) -> list[str]:
+        with self._cv:
+            blocks = self._blocks
+        if blocks is None:
+            return []
+        reach = self.config.reach
+        return [b.id for b in blocks.blocks
+                if b.on_top and not reach.within_play_area(b.pose.position.x, b.pose.position.y)]
+
+    def reset(self, seed: int = -1) -> str:
+        client = self._reset()
+        if client is None:
+            raise TimeoutError("no ResetWorld service is available")
+        response = self._call(client, ResetWorld.Request(seed=seed))
+        if not response.success:
+            raise ExperimentAborted("reset_failed", f"reset_world: {response.message}")
+        return response.message
+
+
+#: how far the node's clock may lag the camera's (/clock period in sim, transport), ns
+_STAMP_MARGIN_NS = 20_000_000
+
+
+def _stamp_ns(msg: BlockArray) -> int:
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def _cancel(handle) -> None:
+    """Ask the executor to stop the goal; at shutdown the context may be gone already."""
+    try:
+        handle.cancel_goal_async()
+    except Exception:  # noqa: BLE001 - nothing more can be done for a goal of a dead graph
+        pass
+
+
+def _instance_record(inst: FoveaInstance) -> InstanceRecord:
+    p = inst.placement.position
+    return InstanceRecord(float(inst.pixel_u), float(inst.pixel_v), [bool(b) for b in inst.bits],
+                          [float(v) for v in inst.features], [str(s) for s in inst.support_ids],
+                          [float(p.x), float(p.y), float(p.z)])
+
+
+_CODE_NAMES = {getattr(_RESULT, n): n.lower() for n in dir(_RESULT)
+               if n.isupper() and isinstance(getattr(_RESULT, n), int)}
+_STATUS_NAMES = {getattr(GoalStatus, n): n.removeprefix("STATUS_").lower() for n in dir(GoalStatus)
+                 if n.startswith("STATUS_")}
+
+
+def _code_name(code: int) -> str:
+    return _CODE_NAMES.get(int(code), f"code_{int(code)}")
+
+
+def _status_name(status: int) -> str:
+    return _STATUS_NAMES.get(int(status), f"status_{int(status)}")

@@ -1,0 +1,227 @@
+"""skill_node: the stacking skill (paper Figure 14) as the `build_stack` action.
+
+Thin: the plan and the choices are core.skill's (the MDP of section 2.4 on the learned
+transitions, a reward for reaching the target height, falls absorbing); the placements go
+through the graph like the curiosity node's (fovea/observe, pick_and_place,
+perception/judge_placement, memory/blocks) via RobotEnvironment. The node only uses the learned
+model loaded from a run's learner.npz (parameter `model`; '' = an untrained model, every
+placement predicted at even odds) and learns nothing. One goal at a time; after every judged
+placement it publishes feedback with the predicted and the observed outcome, observes the
+setting again and chooses anew.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+from katana_common.node_runner import run_node
+from katana_common.params import Param, ParameterError, declare_parameters
+from katana_common.scene import SCENE_PARAMS
+from katana_interfaces.action import BuildStack
+from katana_manipulation.core.reach import pick_reach
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+
+from .core.block_choice import PickReach
+from .core.robot_loop import ExperimentAborted, Stopping, Unrealisable
+from .core.run_record import CHECKPOINT_NAME, load_checkpoint
+from .core.skill import LearnedModel, SkillOutcome, SkillWorld, StackingSkill, build_stack
+from .robot_environment import EnvironmentConfig, RobotEnvironment
+
+PARAMS = (
+    Param("model", "", "A run folder (its learner.npz) or a learner.npz; '' = untrained."),
+    Param("max_height", 3, "Highest stack height the model covers (heights 0..max_height).",
+          0, 7),
+    Param("n_actions", 6, "Actions per state: bits on + 1 (six on the robot).", 1, 32),
+    Param("table_action", 1, "The only action on the table; 0: any.", 0, 32),
+    Param("gamma", 0.95, "Discount factor of the skill's plan.", 0.0, 0.999),
+    Param("max_placements", 12, "Default bound on placements per goal.", 1, 1000),
+    Param("grasp_retries", 2, "Retries of a missed grasp.", 0, 10),
+    Param("service_timeout_s", 10.0, "Timeout of each service call, s.", 0.1, 600.0),
+    Param("action_timeout_s", 120.0, "Timeout of one pick-and-place, s.", 1.0, 3600.0),
+    Param("blocks_timeout_s", 10.0, "Wait for a fresh memory/blocks, s.", 0.1, 600.0),
+    Param("ready_timeout_s", 60.0, "Wait for the graph before the first placement, s.",
+          0.1, 3600.0),
+    *(p for p in SCENE_PARAMS if p.name in ("world_frame", "block_size")),
+)
+
+_RESULT = BuildStack.Result
+#: attempts that placed nothing (a slip, no block to move) before the goal is given up
+MAX_NOT_MADE = 3
+
+
+def load_model(path: str, max_height: int, n_actions: int) -> LearnedModel:
+    """The learned margins of a run (its learner.npz); zeros (even odds) for ''."""
+    if not path:
+        return LearnedModel.from_margins(np.zeros((max_height + 2, n_actions)))
+    file = Path(path)
+    if file.is_dir():
+        file = file / CHECKPOINT_NAME
+    bank, _ = load_checkpoint(file)
+    if bank.n_actions != n_actions or bank.n_states < max_height + 1:
+        raise ValueError(f"{file} models {bank.n_states} states x {bank.n_actions} actions, "
+                         f"the node needs {max_height + 1} x {n_actions}")
+    return LearnedModel.from_bank(bank)
+
+
+class _Canceled(Exception):
+    pass
+
+
+class GraphSkillWorld(SkillWorld):
+    """core.skill's world over RobotEnvironment: settings from the fovea, placements through
+    pick_and_place and the judge, the highest stack from memory/blocks."""
+
+    def __init__(self, env: RobotEnvironment, canceled) -> None:
+        self.env, self.canceled = env, canceled
+        self.setting = None
+        self.not_made: list[str] = []  # why attempts placed nothing
+
+    def offered(self) -> list[tuple[int, int]]:
+        if self.canceled():
+            raise _Canceled
+        self.env.wait_until_current()
+        try:
+            setting = self.setting = self.env.observe()
+        except Unrealisable:
+            return []
+        return sorted({(int(s), int(a) + 1) for s, a in zip(setting.states, setting.actions,
+                                                            strict=True)})
+
+    def place(self, state: int, action: int) -> int:
+        if self.canceled():
+            raise _Canceled
+        # the observed instance (it has a block to move), not a new fovea search
+        index = self.setting.index_of(state, action - 1) if self.setting is not None else None
+        try:
+            outcome = self.env.execute(state, action - 1, index)
+        except (ExperimentAborted, Unrealisable) as exc:
+            # nothing placed (a slip, no block to move): observe again, within the bound
+            self.not_made.append(str(exc))
+            if len(self.not_made) > MAX_NOT_MADE:
+                raise
+            return 0
+        finally:
+            self.env.mark_experiment_done()
+        return int(outcome.label)
+
+    def highest_stack(self) -> int:
+        blocks = self.env.wait_for_blocks()
+        return max((int(b.level) for b in blocks.blocks), default=0)
+
+
+class SkillNode(Node):
+    """Serves build_stack with the learned model only."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("skill_node", **kwargs)
+        self.params = p = declare_parameters(self, PARAMS)
+        try:
+            self.model = load_model(p["model"], p["max_height"], p["n_actions"])
+        except (OSError, ValueError, KeyError) as exc:
+            raise ParameterError(f"parameter 'model': cannot load {p['model']!r}: {exc}") from None
+        self._stop = threading.Event()
+        self._busy = threading.Lock()
+        group = ReentrantCallbackGroup()
+        self.environment = RobotEnvironment(self, EnvironmentConfig(
+            n_actions=p["n_actions"], max_height=p["max_height"],
+            grasp_retries=p["grasp_retries"],
+            reach=PickReach(tuple((b.min_m, b.max_m) for b in (
+                pick_reach(level, p["block_size"][2])
+                for level in range(1, p["max_height"] + 2)))),
+            service_timeout_s=p["service_timeout_s"], action_timeout_s=p["action_timeout_s"],
+            blocks_timeout_s=p["blocks_timeout_s"]), self._stop, callback_group=group)
+        self._ready = False
+        self.server = ActionServer(
+            self, BuildStack, "build_stack", execute_callback=self._execute,
+            goal_callback=lambda _goal: GoalResponse.ACCEPT,
+            cancel_callback=lambda _handle: CancelResponse.ACCEPT, callback_group=group)
+        self.get_logger().info(
+            f"build_stack ready: model {p['model'] or 'untrained'}, heights "
+            f"0..{p['max_height']}, {p['n_actions']} actions")
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def _execute(self, handle):
+        goal = handle.request
+        result = BuildStack.Result()
+        if not self._busy.acquire(blocking=False):
+            return self._end(handle, result, _RESULT.INVALID_GOAL,
+                             "another build_stack goal is active")
+        try:
+            return self._build(handle, goal, result)
+        finally:
+            self._busy.release()
+
+    def _build(self, handle, goal, result):
+        top = self.model.margin.shape[0]
+        if not 1 <= goal.target_height <= min(top, self.params["max_height"] + 1):
+            return self._end(handle, result, _RESULT.INVALID_GOAL,
+                             f"target_height {goal.target_height} outside 1.."
+                             f"{min(top, self.params['max_height'] + 1)}")
+        bound = goal.max_placements or self.params["max_placements"]
+        skill = StackingSkill(self.model, int(goal.target_height), self.params["gamma"],
+                              self.params["table_action"])
+        world = GraphSkillWorld(self.environment, lambda: handle.is_cancel_requested)
+        try:
+            if not self._ready:
+                self.environment.wait_until_ready(self.params["ready_timeout_s"])
+                self._ready = True
+            outcome = build_stack(world, skill, bound, partial(self._feedback, handle, [0]))
+        except _Canceled:
+            handle.canceled()
+            result.error_code, result.reason = _RESULT.CANCELED, "canceled"
+            return result
+        except Stopping as exc:
+            return self._end(handle, result, _RESULT.CANCELED, str(exc))
+        except (ExperimentAborted, Unrealisable, TimeoutError) as exc:
+            if self._ready:  # the memory has published: the height it says
+                try:
+                    result.height_reached = world.highest_stack()
+                except (TimeoutError, Stopping):
+                    pass
+            return self._end(handle, result, _RESULT.EXECUTION_FAILED, str(exc))
+        result.height_reached = int(outcome.height)
+        result.placements = len(outcome.placements)
+        result.falls = outcome.falls
+        code = {"reached": _RESULT.SUCCESS, "no placement offered": _RESULT.NO_PLACEMENT}.get(
+            outcome.reason, _RESULT.PLACEMENT_BOUND)
+        result.success = outcome.reached
+        result.error_code, result.reason = code, outcome.reason
+        (handle.succeed if outcome.reached else handle.abort)()
+        self.get_logger().info(
+            f"build_stack {goal.target_height}: {outcome.reason}, height {outcome.height}, "
+            f"{len(outcome.placements)} placements, {outcome.falls} falls")
+        return result
+
+    @staticmethod
+    def _end(handle, result, code: int, reason: str):
+        result.success, result.error_code, result.reason = False, code, reason
+        handle.abort()
+        return result
+
+    @staticmethod
+    def _feedback(handle, count: list[int], outcome: SkillOutcome) -> None:
+        count[0] += 1
+        number = count[0]
+        handle.publish_feedback(BuildStack.Feedback(
+            placement=number, state=outcome.choice.state, action=outcome.choice.action,
+            predicted_success=outcome.choice.predicted_success,
+            planned_value=outcome.choice.value, observed_label=int(outcome.label),
+            height_after=int(outcome.height_after)))
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(SkillNode, "skill_node", args,
+                    executor_factory=partial(MultiThreadedExecutor, num_threads=4))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

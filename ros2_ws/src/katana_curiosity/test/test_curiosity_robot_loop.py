@@ -1,0 +1,183 @@
+"""core.robot_loop without ROS: the drop, retry and reset policy, stopping, determinism."""
+
+import random
+import threading
+
+import numpy as np
+from katana_curiosity.core.environment import Outcome, Setting
+from katana_curiosity.core.explorer import Explorer, make_strategy
+from katana_curiosity.core.robot_loop import (
+    ExecutionRecord,
+    ExperimentAborted,
+    LoopPolicy,
+    RobotLoop,
+    Stopping,
+    Unrealisable,
+    feasible_actions,
+    robot_bank,
+    set_query_rule,
+)
+from katana_curiosity.core.run_record import ExperienceLog, InstanceRecord, replay
+
+
+class Logger:
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    def info(self, text: str) -> None:
+        self.lines.append(text)
+
+    warning = error = info
+
+
+class ScriptedArm:
+    """A RobotEnvironment whose failures follow a script and whose labels a seeded model."""
+
+    def __init__(self, seed: int, failures: dict[int, Exception] | None = None,
+                 away_after: int | None = None, table_only: bool = False) -> None:
+        self.rng = random.Random(seed)
+        self.failures = failures or {}
+        self.attempt = 0
+        self.resets = 0
+        self.away_after = away_after
+        self.table_only = table_only
+        self.stop_on_attempt: tuple[int, threading.Event] | None = None
+
+    def wait_until_current(self) -> None:
+        pass
+
+    def mark_experiment_done(self) -> None:
+        pass
+
+    def observe(self) -> Setting:
+        self.attempt += 1
+        if self.stop_on_attempt and self.attempt == self.stop_on_attempt[0]:
+            self.stop_on_attempt[1].set()
+            raise Stopping("stopped")
+        failure = self.failures.get(self.attempt)
+        if failure is not None:
+            raise failure
+        states = [0] if self.table_only else [0, 0, 1, 1, 2]
+        return Setting.from_pairs(np.array(states), np.array([0, 1, 2, 3, 4][:len(states)]))
+
+    def execute(self, state: int, action: int, index: int | None = None) -> Outcome:
+        label = 1 if self.rng.random() < (1.0 if state == 0 else (action + 1) / 7) else -1
+        available = [0] if self.table_only else [0, 1, 2]
+        inst = InstanceRecord(1.0, 2.0, [False] * 5, [0.0] * 7, [], [0.2, 0.0, 0.015])
+        return Outcome(label, ExecutionRecord(inst, self.attempt, available, "b1", 1,
+                                              {"pick_place_s": 0.1}))
+
+    def blocks_out_of_reach(self) -> list[str]:
+        return ["b3"] if self.away_after is not None and self.attempt >= self.away_after else []
+
+    def reset(self) -> str:
+        self.resets += 1
+        self.away_after = None
+        return "scattered"
+
+
+def make_loop(tmp_path, arm, max_experiments=10, seed=0, clock=None, stuck_reset=3):
+    bank = robot_bank(3, 6, 1.0, 0.1)
+    strategy = make_strategy("q1", bank, 4, 0.95, seed=seed,
+                             feasible=feasible_actions(3, 6, 1))
+    explorer = Explorer(arm, bank, strategy, record_weights=True)
+    published = []
+    loop = RobotLoop(arm, explorer, ExperienceLog(tmp_path / "experience.jsonl"),
+                     LoopPolicy(max_experiments=max_experiments, stuck_reset=stuck_reset,
+                                backoff_s=0.0),
+                     lambda record, step: published.append(record), Logger(),
+                     wall_clock=clock or (lambda: 5.0))
+    return loop, published
+
+
+def test_drops_are_counted_by_reason_in_the_next_record(tmp_path) -> None:
+    failures = {2: Unrealisable("no_block_to_move", "none"),
+                3: ExperimentAborted("block_slipped", "slipped"),
+                4: TimeoutError("late"), 6: ExperimentAborted("block_slipped", "slipped")}
+    loop, published = make_loop(tmp_path, ScriptedArm(0, failures), max_experiments=4)
+    assert loop.run().startswith("done")
+    assert [r.dropped_before for r in loop.log.records] == [
+        {}, {"block_slipped": 1, "no_block_to_move": 1, "timeout": 1},
+        {"block_slipped": 1}, {}]
+    assert published == loop.log.records
+    assert loop.dropped_total == {"block_slipped": 2, "no_block_to_move": 1, "timeout": 1}
+    assert loop.environment.resets == 1, "three drops in a row reset the world"
+
+
+def test_a_block_out_of_reach_or_a_table_only_scene_asks_for_a_reset(tmp_path) -> None:
+    arm = ScriptedArm(0, away_after=3)
+    loop, _ = make_loop(tmp_path / "a", arm, max_experiments=5)
+    loop.run()
+    assert arm.resets == 1
+    arm = ScriptedArm(0, table_only=True)
+    loop, _ = make_loop(tmp_path / "b", arm, max_experiments=7, stuck_reset=3)
+    loop.run()
+    assert arm.resets == 2, "after experiments 3 and 6, each offering only the table"
+
+
+def test_the_log_replays_to_the_learner_and_resumes(tmp_path) -> None:
+    loop, _ = make_loop(tmp_path, ScriptedArm(1), max_experiments=6)
+    loop.run()
+    bank = robot_bank(3, 6, 1.0, 0.1)
+    replay(bank, ExperienceLog(tmp_path / "experience.jsonl").records)
+    np.testing.assert_array_equal(bank.w, loop.explorer.bank.w)
+    assert [r.index for r in loop.log.records] == list(range(6))
+    assert loop.run().startswith("done"), "nothing more to do at max_experiments"
+
+
+def test_stop_ends_the_loop_at_once_with_the_log_intact(tmp_path) -> None:
+    arm = ScriptedArm(0)
+    loop, _ = make_loop(tmp_path, arm, max_experiments=100)
+    arm.stop_on_attempt = (4, loop.stop)
+    assert loop.run() == "stopped"
+    assert len(ExperienceLog(tmp_path / "experience.jsonl")) == 3
+
+
+def test_the_same_seed_gives_the_same_log_whatever_the_clock(tmp_path) -> None:
+    ticks = iter(range(10_000))
+    runs = []
+    for name, clock in (("a", lambda: 1.0), ("b", lambda: float(next(ticks)) * 7.3)):
+        failures = {3: ExperimentAborted("grasp_missed", "missed")}
+        loop, _ = make_loop(tmp_path / name, ScriptedArm(11, failures), max_experiments=12,
+                            seed=4, clock=clock)
+        loop.run()
+        runs.append([{k: v for k, v in r.__dict__.items() if k not in ("wall_time", "stage_s")}
+                     for r in loop.log.records])
+    assert runs[0] == runs[1]
+    loop, _ = make_loop(tmp_path / "c", ScriptedArm(12), max_experiments=12, seed=4)
+    loop.run()
+    assert [r.label for r in loop.log.records] != [r["label"] for r in runs[0]]
+
+
+def test_a_live_query_rule_change_recomputes_the_flags_not_the_weights() -> None:
+    bank = robot_bank(3, 6, 1.0, 0.1)
+    for i in range(30):
+        bank.update(1, i % 6, 1.0 if i % 2 else -1.0)
+    w = bank.w.copy()
+    set_query_rule(bank, 50.0, 0.0)
+    np.testing.assert_array_equal(bank.w, w)
+    fresh = robot_bank(3, 6, 50.0, 0.0)
+    for i in range(30):
+        fresh.update(1, i % 6, 1.0 if i % 2 else -1.0)
+    np.testing.assert_allclose(bank.chi, fresh.chi)
+    np.testing.assert_array_equal(bank.unknown, fresh.unknown)
+
+
+def test_the_retry_policy_after_a_failed_pick_and_place() -> None:
+    from katana_curiosity.core.robot_loop import (
+        GIVE_UP,
+        RETRY_SAME,
+        TRY_ANOTHER,
+        UNREALISABLE,
+        after_failed_pick_place,
+    )
+
+    table = {  # (result, goals sent so far) -> action, with 2 retries (3 goals at most)
+        ("grasp_missed", 1): RETRY_SAME, ("grasp_missed", 2): RETRY_SAME,
+        ("grasp_missed", 3): GIVE_UP, ("pick_unreachable", 1): TRY_ANOTHER,
+        ("pick_unreachable", 3): GIVE_UP, ("place_unreachable", 1): UNREALISABLE,
+        ("place_unreachable", 9): UNREALISABLE, ("block_slipped", 1): GIVE_UP,
+        ("arm_did_not_reach", 1): GIVE_UP, ("timeout", 1): GIVE_UP,
+    }
+    for (result, attempts), action in table.items():
+        assert after_failed_pick_place(result, attempts, 2) == action, (result, attempts)

@@ -1,0 +1,129 @@
+"""skill_node without an arm: every build_stack goal is answered with a reason, the node keeps
+serving, and a model it cannot load stops it at start-up naming the parameter."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import rclpy
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from katana_common.params import ParameterError
+from katana_curiosity.core.robot_loop import robot_bank
+from katana_curiosity.core.run_record import CHECKPOINT_NAME, save_checkpoint
+from katana_curiosity.skill_node import SkillNode, load_model
+from katana_interfaces.action import BuildStack
+from rclpy.action import ActionClient
+from rclpy.context import Context
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.parameter import Parameter
+
+
+@pytest.fixture(scope="module")
+def graph():
+    import threading
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = SkillNode(context=ctx, parameter_overrides=[Parameter("ready_timeout_s", value=0.2)])
+    client_node = rclpy.create_node("skill_goal_client", context=ctx)
+    executor = MultiThreadedExecutor(num_threads=4, context=ctx)
+    executor.add_node(node)
+    executor.add_node(client_node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    client = ActionClient(client_node, BuildStack, "build_stack")
+    assert client.wait_for_server(timeout_sec=10.0)
+    yield client
+    node.stop()
+    executor.shutdown(timeout_sec=5.0)
+    node.destroy_node()
+    client_node.destroy_node()
+    rclpy.try_shutdown(context=ctx)
+
+
+def _send(client, goal):
+    import time
+
+    future = client.send_goal_async(goal)
+    deadline = time.monotonic() + 20.0
+    while not future.done():
+        assert time.monotonic() < deadline, "no goal response"
+        time.sleep(0.01)
+    handle = future.result()
+    result = handle.get_result_async()
+    while not result.done():
+        assert time.monotonic() < deadline, "no result"
+        time.sleep(0.01)
+    return result.result().result
+
+
+@settings(max_examples=12, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.integers(0, 255), st.integers(0, 65535))
+def test_every_goal_is_answered_with_a_reason(graph, target, bound):
+    result = _send(graph, BuildStack.Goal(target_height=target, max_placements=bound))
+    assert not result.success and result.reason
+    if not 1 <= target <= 4:  # the untrained model covers heights 0..3: stacks of 1..4
+        assert result.error_code == BuildStack.Result.INVALID_GOAL
+        assert str(target) in result.reason
+    else:  # no arm in this graph: it says what it waited for
+        assert result.error_code == BuildStack.Result.EXECUTION_FAILED
+        assert "not ready" in result.reason
+
+
+def test_an_unloadable_model_stops_the_node_naming_the_parameter(tmp_path):
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        with pytest.raises(ParameterError, match="'model'"):
+            SkillNode(context=ctx,
+                      parameter_overrides=[Parameter("model", value=str(tmp_path / "none"))])
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def test_the_model_is_the_runs_learned_margins(tmp_path):
+    bank = robot_bank(3, 6, 1.0, 0.1)
+    for _ in range(5):
+        bank.update(1, 5, 1.0)
+        bank.update(2, 0, -1.0)
+    save_checkpoint(tmp_path / CHECKPOINT_NAME, bank, 10)
+    model = load_model(str(tmp_path), 3, 6)
+    np.testing.assert_allclose(model.margin, bank.margin)
+    assert model.margin[1, 5] > 0.5 and model.margin[2, 0] < -0.5
+    np.testing.assert_array_equal(load_model("", 3, 6).margin, np.zeros((5, 6)))
+    with pytest.raises(ValueError, match="7 x 6"):
+        load_model(str(tmp_path), 6, 6)
+
+
+def test_an_attempt_that_placed_nothing_is_chosen_anew_within_the_bound():
+    """place() returning 0 (the arm lost the block) records no outcome, and counts towards
+    the bound: the skill observes again."""
+    from katana_curiosity.core.skill import LearnedModel, SkillWorld, StackingSkill, build_stack
+
+    class World(SkillWorld):
+        def __init__(self, labels):
+            self.labels, self.height, self.calls = list(labels), 1, 0
+
+        def offered(self):
+            return [(0, 1)] + [(h, 6) for h in range(1, self.height + 1)]
+
+        def place(self, state, action):
+            self.calls += 1
+            label = self.labels.pop(0)
+            if label > 0:
+                self.height = state + 1
+            return label
+
+        def highest_stack(self):
+            return self.height
+
+    skill = StackingSkill(LearnedModel.from_margins(np.full((5, 6), 0.9)), target_height=3)
+    world = World([0, 1, 0, 1])
+    result = build_stack(world, skill, max_placements=6)
+    assert result.reached and world.calls == 4
+    assert [p.label for p in result.placements] == [1, 1]
+    bounded = build_stack(World([0, 0, 0]), skill, max_placements=3)
+    assert not bounded.reached and bounded.placements == []
+    assert bounded.reason == "placement bound reached"

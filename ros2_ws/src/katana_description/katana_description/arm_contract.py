@@ -1,0 +1,522 @@
+"""The arm contract: how every backend (sim_node, katana_driver_node) answers arm and gripper goals.
+
+ROS-free, so both nodes answer every goal the same way and the rules are tested without ROS.
+Joint names, limits and speeds come from :mod:`katana_description.models`; error codes are
+control_msgs/FollowJointTrajectory's (mirrored in katana_interfaces).
+
+API (stable; plain Python in, plain Python out):
+
+- ``ArmContract(model="450_6m180", max_trajectory_s=60.0, default_goal_tolerance_rad=0.01,
+  default_goal_time_tolerance_s=1.0, ...)``: the per-backend settings; ``ValueError`` when
+  one is out of range. ``contract.limits`` and ``contract.max_speed`` give the joint facts.
+- ``TrajectoryGoal(joint_names, times_s, positions, velocities=None, path_tolerance={},
+  goal_tolerance={}, goal_time_tolerance_s=0.0)``: a FollowJointTrajectory goal. Rows of
+  ``positions``/``velocities`` are in ``joint_names`` order; a velocity row may be empty (all
+  rows empty = the arm stops at every point). Tolerances are ``{name: rad}`` or a sequence of
+  ``(name, rad)`` pairs (pairs let duplicates be detected): 0 = the contract's default,
+  negative = no tolerance (control_msgs' meaning).
+- ``validate_trajectory(goal, current, contract) -> Verdict``: ``Verdict(SUCCESSFUL, "")`` or
+  the error code and a reason. ``current`` maps every arm joint to its measured angle (rad).
+  Checked: names (arm joints only, no duplicates, INVALID_JOINTS; a partial goal names a
+  subset and the other joints hold where they are), at least one point, finite times >= 0,
+  strictly increasing, last point within ``max_trajectory_s``; finite positions within the
+  model's limits (no wrapping: every Katana joint is a bounded revolute joint whose range
+  is under 2 pi, so ``q + 2 pi`` is a different, unreachable, command); velocities finite, one
+  per joint or none, zero at the last point (both backends stop there); a point at t = 0 within
+  ``START_JUMP_RAD`` of ``current``; the peak speed of every cubic Hermite segment (the first
+  from ``current`` at rest) within the joint's limit times ``speed_margin``; tolerances finite,
+  for joints of the goal, no duplicates; ``goal_time_tolerance_s`` finite and >= 0.
+- ``complete_trajectory(goal, current) -> TrajectoryGoal``: the goal on all five arm joints in
+  ``models.ARM_JOINTS`` order (joints a partial goal leaves out hold ``current``); velocities
+  ``None`` when the goal gives none. Call it on a validated goal.
+- ``TrajectoryJudge(goal, contract)``: judges completion of a validated, completed goal.
+  ``judge.check(elapsed_s, desired, actual, at_rest=True) -> Outcome`` with ``elapsed_s``
+  from the start of motion and ``desired``/``actual`` in the goal's joint order. Path
+  tolerances apply while ``elapsed_s < duration_s`` (PATH_TOLERANCE_VIOLATED); after the
+  last point the goal succeeds once every joint is within its goal tolerance and ``at_rest``
+  (the backend's own "motion finished" signal), and fails with GOAL_TOLERANCE_VIOLATED after
+  ``goal_time_s`` more. Errors are plain differences ``actual - desired`` (see wrapping above).
+- ``GripperGoal(position, max_effort=0.0)`` (rad, N m; 0 = the backend's default effort);
+  ``validate_gripper(goal, arm_active=False) -> Verdict``: finite position within
+  [GRIPPER_CLOSED, GRIPPER_OPEN], finite max_effort >= 0, and no gripper goal while an arm
+  goal is active (the hardware cannot run both at once; the simulation refuses it too).
+  GripperCommand has no error code: a refusal is an aborted goal with this reason, and
+  ``Verdict.error_code`` is INVALID_GOAL.
+- ``GripperJudge(goal, start_position, contract)``: ``check(elapsed_s, position, speed,
+  at_rest=True) -> GripperOutcome``. Reached (succeeded, reached_goal) within
+  ``gripper_tolerance_rad`` once ``at_rest`` (the backend's "motor stopped"); stalled
+  (succeeded, stalled: the fingers stopped on something, a grasp) when slower than
+  ``gripper_stall_speed`` for ``gripper_stall_time_s`` while behind the ideal ramp to the goal
+  at the finger speed limit; after that ramp plus ``gripper_timeout_s`` it reports stalled.
+- ``Outcome``/``GripperOutcome``: ``status`` (RUNNING, SUCCEEDED, ABORTED, CANCELED),
+  ``error_code``, ``message``; ``done``. ``hermite_peak_speed`` and ``joint_error`` are the
+  helpers the rules use.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+from katana_description import models as m
+
+# control_msgs/FollowJointTrajectory result codes (katana_interfaces mirrors them; a test checks).
+SUCCESSFUL = 0
+INVALID_GOAL = -1
+INVALID_JOINTS = -2
+OLD_HEADER_TIMESTAMP = -3
+PATH_TOLERANCE_VIOLATED = -4
+GOAL_TOLERANCE_VIOLATED = -5
+
+RUNNING = "running"
+SUCCEEDED = "succeeded"
+ABORTED = "aborted"
+CANCELED = "canceled"
+
+#: Slack on the joint limits for rounding (rad); a goal at the limit itself is valid.
+LIMIT_SLACK_RAD = 1e-6
+#: A point at time 0 stands for "where the arm is": it may differ by at most this (rad).
+START_JUMP_RAD = 0.05
+#: The last point's velocities must be zero to within this (rad/s).
+REST_SPEED_RAD_S = 1e-9
+#: Fingers lagging the ideal ramp by more than this are "behind" (for the stall rule), rad.
+GRIPPER_LAG_RAD = 0.05
+
+Tolerances = Mapping[str, float] | Sequence[tuple[str, float]]
+
+
+class Verdict(NamedTuple):
+    error_code: int
+    error_string: str
+
+    @property
+    def ok(self) -> bool:
+        return self.error_code == SUCCESSFUL
+
+
+OK = Verdict(SUCCESSFUL, "")
+
+
+@dataclass(frozen=True)
+class ArmContract:
+    """The rules' settings, one per backend node (from its parameters)."""
+
+    model: str = m.DEFAULT_MODEL
+    max_trajectory_s: float = 60.0
+    default_goal_tolerance_rad: float = 0.01
+    default_goal_time_tolerance_s: float = 1.0
+    speed_margin: float = 1.02
+    gripper_tolerance_rad: float = 0.01
+    gripper_stall_speed: float = 0.02
+    gripper_stall_time_s: float = 0.1
+    gripper_timeout_s: float = 1.5
+
+    def __post_init__(self) -> None:
+        m.get_model(self.model)  # ValueError naming the known models
+        positive = {
+            "max_trajectory_s": self.max_trajectory_s,
+            "default_goal_tolerance_rad": self.default_goal_tolerance_rad,
+            "gripper_tolerance_rad": self.gripper_tolerance_rad,
+            "gripper_stall_speed": self.gripper_stall_speed,
+            "gripper_stall_time_s": self.gripper_stall_time_s,
+            "gripper_timeout_s": self.gripper_timeout_s,
+        }
+        for name, value in positive.items():
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"{name} must be finite and > 0, got {value}")
+        if not (
+            math.isfinite(self.default_goal_time_tolerance_s)
+            and self.default_goal_time_tolerance_s >= 0.0
+        ):
+            raise ValueError("default_goal_time_tolerance_s must be finite and >= 0")
+        if not (math.isfinite(self.speed_margin) and 1.0 <= self.speed_margin <= 1.2):
+            raise ValueError(f"speed_margin must be in [1, 1.2], got {self.speed_margin}")
+
+    @property
+    def limits(self) -> dict[str, tuple[float, float]]:
+        return m.get_model(self.model).limits
+
+    @property
+    def max_speed(self) -> dict[str, float]:
+        return m.JOINT_MAX_SPEED
+
+
+@dataclass(frozen=True)
+class TrajectoryGoal:
+    joint_names: Sequence[str]
+    times_s: Sequence[float]
+    positions: Sequence[Sequence[float]]
+    velocities: Sequence[Sequence[float]] | None = None
+    path_tolerance: Tolerances = field(default_factory=dict)
+    goal_tolerance: Tolerances = field(default_factory=dict)
+    goal_time_tolerance_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class GripperGoal:
+    position: float
+    max_effort: float = 0.0
+
+
+@dataclass
+class Outcome:
+    status: str = RUNNING
+    error_code: int = SUCCESSFUL
+    message: str = ""
+
+    @property
+    def done(self) -> bool:
+        return self.status != RUNNING
+
+
+@dataclass
+class GripperOutcome:
+    status: str = RUNNING
+    position: float = 0.0
+    effort: float = 0.0
+    stalled: bool = False
+    reached_goal: bool = False
+    message: str = ""
+
+    @property
+    def done(self) -> bool:
+        return self.status != RUNNING
+
+
+def hermite_peak_speed(p0: float, p1: float, v0: float, v1: float, h: float) -> float:
+    """Largest |velocity| of the cubic Hermite segment from (p0, v0) to (p1, v1) over h seconds.
+    Its velocity is a quadratic in time: the peak is at an end or at the vertex."""
+    a = 6.0 * (p0 - p1) / h + 3.0 * (v0 + v1)  # v(s) = a s^2 + b s + v0, s = t / h in [0, 1]
+    b = 6.0 * (p1 - p0) / h - 4.0 * v0 - 2.0 * v1
+    candidates = [abs(v0), abs(v1)]
+    if abs(a) > 1e-12:
+        s = -b / (2.0 * a)
+        if 0.0 < s < 1.0:
+            candidates.append(abs(a * s * s + b * s + v0))
+    return max(candidates)
+
+
+def joint_error(actual: float, desired: float) -> float:
+    """actual - desired, unwrapped: Katana joints are bounded (range < 2 pi), not continuous."""
+    return actual - desired
+
+
+def _pairs(tolerances: Tolerances) -> list[tuple[str, float]]:
+    if isinstance(tolerances, Mapping):
+        return [(str(k), float(v)) for k, v in tolerances.items()]
+    return [(str(k), float(v)) for k, v in tolerances]
+
+
+def _check_tolerances(kind: str, tolerances: Tolerances, names: Sequence[str]) -> Verdict:
+    seen: set[str] = set()
+    for name, value in _pairs(tolerances):
+        if name not in names:
+            return Verdict(
+                INVALID_JOINTS,
+                (f"{kind} tolerance for {name!r}, which is not a joint of the goal {list(names)}"),
+            )
+        if name in seen:
+            return Verdict(INVALID_JOINTS, f"{kind} tolerance for {name} given twice")
+        seen.add(name)
+        if not math.isfinite(value):
+            return Verdict(INVALID_GOAL, f"{kind} tolerance of {name} is not finite ({value})")
+    return OK
+
+
+def validate_trajectory(
+    goal: TrajectoryGoal, current: Mapping[str, float], contract: ArmContract
+) -> Verdict:
+    """OK, or the control_msgs error code and the reason the goal cannot be run."""
+    names = list(goal.joint_names)
+    if not names:
+        return Verdict(INVALID_JOINTS, "no joint names")
+    unknown = [n for n in names if n not in m.ARM_JOINTS]
+    if unknown:
+        return Verdict(
+            INVALID_JOINTS,
+            (f"unknown or non-arm joints {unknown}; arm joints: {list(m.ARM_JOINTS)}"),
+        )
+    if len(set(names)) != len(names):
+        return Verdict(INVALID_JOINTS, f"duplicate joint names {names}")
+    times = [float(t) for t in goal.times_s]
+    if not times:
+        return Verdict(INVALID_GOAL, "the trajectory has no points")
+    if len(goal.positions) != len(times):
+        return Verdict(
+            INVALID_GOAL, (f"{len(goal.positions)} position rows for {len(times)} points")
+        )
+    limits, speeds = contract.limits, contract.max_speed
+    prev_t = -math.inf
+    for i, (t, row) in enumerate(zip(times, goal.positions, strict=True)):
+        if not math.isfinite(t) or t < 0.0:
+            return Verdict(INVALID_GOAL, f"point {i} has time_from_start {t} s; need finite >= 0")
+        if t <= prev_t:
+            return Verdict(
+                INVALID_GOAL,
+                (f"point {i}: time_from_start {t} s must be later than the previous {prev_t} s"),
+            )
+        prev_t = t
+        if len(row) != len(names):
+            return Verdict(
+                INVALID_GOAL, (f"point {i} has {len(row)} positions for {len(names)} joints")
+            )
+        for n, q in zip(names, row, strict=True):
+            if not math.isfinite(q):
+                return Verdict(INVALID_GOAL, f"point {i}: {n} is not finite ({q})")
+            lo, hi = limits[n]
+            if not lo - LIMIT_SLACK_RAD <= q <= hi + LIMIT_SLACK_RAD:
+                return Verdict(
+                    INVALID_GOAL, (f"point {i}: {n} = {q:.6f} rad outside its limits [{lo}, {hi}]")
+                )
+    if times[-1] > contract.max_trajectory_s:
+        return Verdict(
+            INVALID_GOAL,
+            (
+                f"the trajectory lasts {times[-1]:.6g} s, longer than max_trajectory_s "
+                f"{contract.max_trajectory_s:g} s"
+            ),
+        )
+    velocities = _velocity_rows(goal, len(names))
+    if isinstance(velocities, Verdict):
+        return velocities
+    for n in names:
+        if n not in current or not math.isfinite(current[n]):
+            return Verdict(INVALID_GOAL, f"the arm's position of {n} is unknown")
+    verdict = _check_speeds(names, times, goal.positions, velocities, current, contract, speeds)
+    if not verdict.ok:
+        return verdict
+    for kind, tol in (("path", goal.path_tolerance), ("goal", goal.goal_tolerance)):
+        verdict = _check_tolerances(kind, tol, names)
+        if not verdict.ok:
+            return verdict
+    gtt = float(goal.goal_time_tolerance_s)
+    if not (math.isfinite(gtt) and gtt >= 0.0):
+        return Verdict(INVALID_GOAL, f"goal_time_tolerance {gtt} s must be finite and >= 0")
+    return OK
+
+
+def _velocity_rows(goal: TrajectoryGoal, n_joints: int) -> list[list[float]] | None | Verdict:
+    if goal.velocities is None:
+        return None
+    rows = [list(map(float, r)) for r in goal.velocities]
+    if not rows or all(len(r) == 0 for r in rows):
+        return None
+    if len(rows) != len(goal.times_s) or any(len(r) != n_joints for r in rows):
+        return Verdict(
+            INVALID_GOAL, ("velocities must be given for every point, one per joint, or for none")
+        )
+    for i, r in enumerate(rows):
+        if not all(math.isfinite(v) for v in r):
+            return Verdict(INVALID_GOAL, f"point {i}: a velocity is not finite ({r})")
+    if any(abs(v) > REST_SPEED_RAD_S for v in rows[-1]):
+        return Verdict(
+            INVALID_GOAL,
+            (f"the last point's velocities {rows[-1]} must be zero: the arm stops there"),
+        )
+    return rows
+
+
+def _check_speeds(names, times, positions, velocities, current, contract, speeds) -> Verdict:
+    prev_t, prev_q, prev_v = 0.0, [float(current[n]) for n in names], [0.0] * len(names)
+    for i, (t, row) in enumerate(zip(times, positions, strict=True)):
+        vel = velocities[i] if velocities is not None else [0.0] * len(names)
+        dt = t - prev_t
+        for j, n in enumerate(names):
+            if dt <= 0.0:  # a point at t = 0: where the arm is
+                jump = abs(row[j] - prev_q[j])
+                if jump > START_JUMP_RAD:
+                    return Verdict(
+                        INVALID_GOAL,
+                        (
+                            f"point {i} at time 0 puts {n} {jump:.4f} rad from where it is "
+                            f"(at most {START_JUMP_RAD})"
+                        ),
+                    )
+                continue
+            peak = hermite_peak_speed(prev_q[j], row[j], prev_v[j], vel[j], dt)
+            limit = speeds[n]
+            if peak > limit * contract.speed_margin:
+                return Verdict(
+                    INVALID_GOAL,
+                    (
+                        f"segment to point {i}: {n} needs {peak:.3f} rad/s, above its limit "
+                        f"{limit:.3f} rad/s; give the trajectory more time"
+                    ),
+                )
+        prev_t, prev_q, prev_v = t, [float(q) for q in row], list(vel)
+    return OK
+
+
+def complete_trajectory(goal: TrajectoryGoal, current: Mapping[str, float]) -> TrajectoryGoal:
+    """The goal on all five arm joints (ARM_JOINTS order); joints left out hold ``current``."""
+    names = list(goal.joint_names)
+    index = {n: i for i, n in enumerate(names)}
+
+    def full(row: Sequence[float], hold: Mapping[str, float]) -> list[float]:
+        return [float(row[index[n]]) if n in index else float(hold[n]) for n in m.ARM_JOINTS]
+
+    zero = dict.fromkeys(m.ARM_JOINTS, 0.0)
+    vel = goal.velocities
+    rows = None
+    if vel is not None and any(len(r) for r in vel):
+        rows = [full(r, zero) for r in vel]
+    return TrajectoryGoal(
+        joint_names=list(m.ARM_JOINTS),
+        times_s=[float(t) for t in goal.times_s],
+        positions=[full(r, current) for r in goal.positions],
+        velocities=rows,
+        path_tolerance=dict(_pairs(goal.path_tolerance)),
+        goal_tolerance=dict(_pairs(goal.goal_tolerance)),
+        goal_time_tolerance_s=float(goal.goal_time_tolerance_s),
+    )
+
+
+class TrajectoryJudge:
+    """Completion of one validated goal: path tolerances while it runs, goal tolerances after."""
+
+    def __init__(self, goal: TrajectoryGoal, contract: ArmContract) -> None:
+        self.names = list(goal.joint_names)
+        self.final = [float(q) for q in goal.positions[-1]]
+        self.duration_s = float(goal.times_s[-1])
+        goal_tol = dict(_pairs(goal.goal_tolerance))
+        path_tol = dict(_pairs(goal.path_tolerance))
+        self.goal_tol = [
+            self._tol(goal_tol.get(n, 0.0), contract.default_goal_tolerance_rad) for n in self.names
+        ]
+        self.path_tol = [self._tol(path_tol.get(n, 0.0), math.inf) for n in self.names]
+        self.goal_time_s = (
+            float(goal.goal_time_tolerance_s) or contract.default_goal_time_tolerance_s
+        )
+        self.outcome = Outcome()
+
+    @staticmethod
+    def _tol(value: float, default: float) -> float:
+        if value == 0.0:
+            return default
+        return math.inf if value < 0.0 else value
+
+    def check(
+        self,
+        elapsed_s: float,
+        desired: Sequence[float],
+        actual: Sequence[float],
+        at_rest: bool = True,
+    ) -> Outcome:
+        """Update and return the outcome from one measurement ``elapsed_s`` after the start."""
+        if self.outcome.done:
+            return self.outcome
+        if elapsed_s < self.duration_s:
+            for j, n in enumerate(self.names):
+                err = abs(joint_error(actual[j], desired[j]))
+                if err > self.path_tol[j]:
+                    self.outcome = Outcome(
+                        ABORTED,
+                        PATH_TOLERANCE_VIOLATED,
+                        (f"{n} is {err:.4f} rad off the path (tolerance {self.path_tol[j]:.4f})"),
+                    )
+                    return self.outcome
+            return self.outcome
+        off = [abs(joint_error(a, f)) for a, f in zip(actual, self.final, strict=True)]
+        if at_rest and all(o <= t for o, t in zip(off, self.goal_tol, strict=True)):
+            self.outcome = Outcome(SUCCEEDED, SUCCESSFUL, "")
+        elif elapsed_s > self.duration_s + self.goal_time_s:
+            j = max(range(len(off)), key=lambda k: off[k] - self.goal_tol[k])
+            still = "" if at_rest else "; still moving"
+            self.outcome = Outcome(
+                ABORTED,
+                GOAL_TOLERANCE_VIOLATED,
+                (
+                    f"{self.names[j]} ended {off[j]:.4f} rad from the goal (tolerance "
+                    f"{self.goal_tol[j]:.4f}) {self.goal_time_s:.2f} s after the end{still}"
+                ),
+            )
+        return self.outcome
+
+    def cancel(self, message: str = "canceled") -> Outcome:
+        if not self.outcome.done:
+            self.outcome = Outcome(CANCELED, SUCCESSFUL, message)
+        return self.outcome
+
+    def abort(self, error_code: int, message: str) -> Outcome:
+        """The backend ends the goal for its own reason (lost link, collision, timeout)."""
+        if not self.outcome.done:
+            self.outcome = Outcome(ABORTED, error_code, message)
+        return self.outcome
+
+
+def validate_gripper(goal: GripperGoal, arm_active: bool = False) -> Verdict:
+    """OK, or INVALID_GOAL and the reason a gripper goal is refused."""
+    lo, hi = m.GRIPPER_CLOSED, m.GRIPPER_OPEN
+    pos, effort = float(goal.position), float(goal.max_effort)
+    if not math.isfinite(pos) or not lo - LIMIT_SLACK_RAD <= pos <= hi + LIMIT_SLACK_RAD:
+        return Verdict(INVALID_GOAL, f"gripper position {pos} rad outside [{lo}, {hi}]")
+    if not (math.isfinite(effort) and effort >= 0.0):
+        return Verdict(INVALID_GOAL, f"max_effort {effort} N m must be finite and >= 0")
+    if arm_active:
+        return Verdict(INVALID_GOAL, "an arm trajectory is running; send the gripper goal after it")
+    return OK
+
+
+class GripperJudge:
+    """Completion of one validated gripper goal (see the module docstring for the rules)."""
+
+    def __init__(self, goal: GripperGoal, start_position: float, contract: ArmContract) -> None:
+        self.goal = min(m.GRIPPER_OPEN, max(m.GRIPPER_CLOSED, float(goal.position)))
+        self.effort = float(goal.max_effort)
+        self.start = float(start_position)
+        self.speed = m.JOINT_MAX_SPEED[m.FINGER_JOINTS[0]]
+        self.ramp_s = abs(self.goal - self.start) / self.speed
+        self.c = contract
+        self._still_since: float | None = None
+        self.outcome = GripperOutcome()
+
+    @property
+    def time_limit_s(self) -> float:
+        """After this the judge has answered, whatever the fingers do."""
+        return self.ramp_s + self.c.gripper_timeout_s
+
+    def ideal(self, elapsed_s: float) -> float:
+        """Where fingers at the finger speed limit would be ``elapsed_s`` after the start."""
+        span = self.goal - self.start
+        return self.start + math.copysign(min(self.speed * max(elapsed_s, 0.0), abs(span)), span)
+
+    def check(self, elapsed_s: float, position: float, speed: float,
+              at_rest: bool = True) -> GripperOutcome:
+        """``at_rest``: the backend's own "motor stopped" signal; reached needs it."""
+        if self.outcome.done:
+            return self.outcome
+        pos = float(position)
+        if at_rest and abs(pos - self.goal) <= self.c.gripper_tolerance_rad:
+            self.outcome = GripperOutcome(SUCCEEDED, pos, self.effort, False, True, "")
+            return self.outcome
+        behind = elapsed_s >= self.ramp_s or abs(self.ideal(elapsed_s) - pos) > GRIPPER_LAG_RAD
+        if behind and abs(speed) < self.c.gripper_stall_speed:
+            if self._still_since is None:
+                self._still_since = elapsed_s
+            elif elapsed_s - self._still_since >= self.c.gripper_stall_time_s:
+                self.outcome = GripperOutcome(
+                    SUCCEEDED, pos, self.effort, True, False, "fingers stalled before the goal"
+                )
+                return self.outcome
+        else:
+            self._still_since = None
+        if elapsed_s > self.time_limit_s:
+            self.outcome = GripperOutcome(
+                SUCCEEDED,
+                pos,
+                self.effort,
+                True,
+                False,
+                "fingers did not settle; reporting stalled",
+            )
+        return self.outcome
+
+    def end(self, status: str, position: float, message: str) -> GripperOutcome:
+        """The backend ends the goal itself (canceled, lost link, collision)."""
+        if not self.outcome.done:
+            self.outcome = GripperOutcome(
+                status, float(position), self.effort, False, False, message
+            )
+        return self.outcome

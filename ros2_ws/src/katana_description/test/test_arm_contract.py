@@ -1,0 +1,345 @@
+"""The arm contract: property-based tests of goal validation and completion (ROS-free)."""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from katana_description import arm_contract as ac
+from katana_description import models as m
+
+CONTRACT = ac.ArmContract()
+REST = {n: 0.5 * (m.JOINT_LIMITS[n][0] + m.JOINT_LIMITS[n][1]) for n in m.ARM_JOINTS}
+ACTION = (
+    Path(__file__).resolve().parents[2]
+    / "katana_interfaces"
+    / "action"
+    / "FollowJointTrajectory.action"
+)
+
+
+def _within(name: str):
+    lo, hi = m.JOINT_LIMITS[name]
+    return st.floats(lo, hi, allow_nan=False)
+
+
+@st.composite
+def valid_goals(draw, partial: bool = True):
+    """Goals that obey every rule: joints within limits, segments slow enough at rest."""
+    names = list(m.ARM_JOINTS)
+    if partial:
+        names = draw(st.lists(st.sampled_from(m.ARM_JOINTS), min_size=1, max_size=5, unique=True))
+    current = {n: draw(_within(n)) for n in m.ARM_JOINTS}
+    n_points = draw(st.integers(1, 4))
+    rows = [[draw(_within(n)) for n in names] for _ in range(n_points)]
+    times, prev, t = [], [current[n] for n in names], 0.0
+    for row in rows:
+        # at rest at both ends a Hermite segment peaks at 1.5 x its mean speed
+        need = max(
+            1.5 * abs(q - p) / m.JOINT_MAX_SPEED[n]
+            for n, q, p in zip(names, row, prev, strict=True)
+        )
+        t += max(need * draw(st.floats(1.0, 3.0)), 0.01)
+        times.append(t)
+        prev = row
+    tol = {n: draw(st.floats(-1.0, 0.5, allow_nan=False)) for n in names[:2]}
+    goal = ac.TrajectoryGoal(
+        names,
+        times,
+        rows,
+        None,
+        path_tolerance={},
+        goal_tolerance=tol,
+        goal_time_tolerance_s=draw(st.floats(0.0, 5.0)),
+    )
+    return goal, current
+
+
+def test_codes_equal_the_interface_constants():
+    text = ACTION.read_text()
+    found = dict(re.findall(r"int32 ([A-Z_]+)=(-?\d+)", text))
+    assert found, "no constants parsed from the .action file"
+    for name, value in found.items():
+        assert getattr(ac, name) == int(value), name
+
+
+@settings(max_examples=200, deadline=None)
+@given(valid_goals())
+def test_valid_goals_are_accepted(case):
+    goal, current = case
+    assert ac.validate_trajectory(goal, current, CONTRACT) == ac.OK
+
+
+@settings(max_examples=100, deadline=None)
+@given(valid_goals())
+def test_completion_holds_the_joints_a_partial_goal_leaves_out(case):
+    goal, current = case
+    full = ac.complete_trajectory(goal, current)
+    assert list(full.joint_names) == list(m.ARM_JOINTS)
+    for row_in, row_out in zip(goal.positions, full.positions, strict=True):
+        for j, n in enumerate(m.ARM_JOINTS):
+            expected = row_in[goal.joint_names.index(n)] if n in goal.joint_names else current[n]
+            assert row_out[j] == expected
+    assert ac.validate_trajectory(full, current, CONTRACT) == ac.OK
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    valid_goals(),
+    st.sampled_from(
+        [
+            "nan_pos",
+            "inf_pos",
+            "limit",
+            "wrap",
+            "time_back",
+            "too_long",
+            "nan_tol",
+            "inf_tol",
+            "nan_gtt",
+            "neg_gtt",
+            "tol_other_joint",
+            "fast",
+            "last_velocity",
+            "short_row",
+            "neg_time",
+        ]
+    ),
+)
+def test_each_broken_rule_is_refused_with_its_code(case, fault):
+    goal, current = case
+    names, times = list(goal.joint_names), list(goal.times_s)
+    rows = [list(r) for r in goal.positions]
+    kw = dict(path_tolerance={}, goal_tolerance={}, goal_time_tolerance_s=0.0, velocities=None)
+    code = ac.INVALID_GOAL
+    n0 = names[0]
+    lo, hi = m.JOINT_LIMITS[n0]
+    if fault == "nan_pos":
+        rows[-1][0] = math.nan
+    elif fault == "inf_pos":
+        rows[-1][0] = -math.inf
+    elif fault == "limit":
+        rows[-1][0] = hi + 0.01
+    elif fault == "wrap":  # the same angle one turn on: not the same command on a bounded joint
+        rows[-1][0] = rows[-1][0] + 2.0 * math.pi
+    elif fault == "time_back":
+        times = times + [times[-1]]
+        rows = rows + [rows[-1]]
+    elif fault == "too_long":
+        times = [t + CONTRACT.max_trajectory_s for t in times]
+    elif fault == "nan_tol":
+        kw["path_tolerance"] = {n0: math.nan}
+    elif fault == "inf_tol":
+        kw["goal_tolerance"] = {n0: math.inf}
+    elif fault == "nan_gtt":
+        kw["goal_time_tolerance_s"] = math.nan
+    elif fault == "neg_gtt":
+        kw["goal_time_tolerance_s"] = -0.1
+    elif fault == "tol_other_joint":
+        kw["goal_tolerance"] = {"katana_r_finger_joint": 0.1}
+        code = ac.INVALID_JOINTS
+    elif fault == "fast":  # the whole range in 10 ms
+        rows[0][0] = hi if current[n0] - lo < hi - current[n0] else lo
+        times = [0.01 + 0.01 * i for i in range(len(times))]
+    elif fault == "last_velocity":
+        kw["velocities"] = [[0.0] * len(names) for _ in times]
+        kw["velocities"][-1][0] = 0.1
+    elif fault == "short_row":
+        rows[0] = rows[0][:-1]
+    elif fault == "neg_time":
+        times[0] = -1e-3
+    bad = ac.TrajectoryGoal(names, times, rows, **kw)
+    verdict = ac.validate_trajectory(bad, current, CONTRACT)
+    assert verdict.error_code == code, (fault, verdict)
+    assert verdict.error_string
+
+
+@pytest.mark.parametrize(
+    "names, code",
+    [
+        ([], ac.INVALID_JOINTS),
+        (["katana_r_finger_joint"], ac.INVALID_JOINTS),
+        (["katana_motor1_pan_joint", "katana_motor1_pan_joint"], ac.INVALID_JOINTS),
+        (["bogus"], ac.INVALID_JOINTS),
+    ],
+)
+def test_bad_joint_names(names, code):
+    goal = ac.TrajectoryGoal(names, [2.0], [[0.0] * len(names)])
+    assert ac.validate_trajectory(goal, REST, CONTRACT).error_code == code
+
+
+def test_duplicate_tolerance_pairs_are_refused():
+    n = m.ARM_JOINTS[0]
+    goal = ac.TrajectoryGoal([n], [2.0], [[REST[n]]], goal_tolerance=[(n, 0.1), (n, 0.2)])
+    assert ac.validate_trajectory(goal, REST, CONTRACT).error_code == ac.INVALID_JOINTS
+
+
+def test_a_goal_beyond_max_trajectory_s_is_refused_at_once():
+    n = m.ARM_JOINTS[0]
+    goal = ac.TrajectoryGoal([n], [1e5], [[REST[n]]])
+    verdict = ac.validate_trajectory(goal, REST, ac.ArmContract(max_trajectory_s=30.0))
+    assert verdict.error_code == ac.INVALID_GOAL
+    assert "max_trajectory_s" in verdict.error_string
+
+
+_any_float = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10, 10))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    names=st.lists(st.one_of(st.sampled_from(m.ALL_JOINTS), st.text(max_size=5)), max_size=6),
+    times=st.lists(_any_float, max_size=4),
+    rows=st.lists(st.lists(_any_float, max_size=6), max_size=4),
+    vels=st.one_of(st.none(), st.lists(st.lists(_any_float, max_size=6), max_size=4)),
+    tol=st.dictionaries(st.sampled_from(m.ALL_JOINTS), _any_float, max_size=3),
+    gtt=_any_float,
+)
+def test_arbitrary_goals_get_a_verdict_never_an_exception(names, times, rows, vels, tol, gtt):
+    goal = ac.TrajectoryGoal(names, times, rows, vels, tol, tol, gtt)
+    verdict = ac.validate_trajectory(goal, REST, CONTRACT)
+    assert verdict.error_code in (ac.SUCCESSFUL, ac.INVALID_GOAL, ac.INVALID_JOINTS)
+    assert verdict.ok == (verdict.error_string == "")
+    if verdict.ok:  # then every number is finite and within the limits
+        for row in rows:
+            for n, q in zip(names, row, strict=True):
+                assert m.JOINT_LIMITS[n][0] - 1e-6 <= q <= m.JOINT_LIMITS[n][1] + 1e-6
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    p0=st.floats(-3, 3),
+    p1=st.floats(-3, 3),
+    v0=st.floats(-2, 2),
+    v1=st.floats(-2, 2),
+    h=st.floats(0.05, 5.0),
+)
+def test_hermite_peak_matches_dense_sampling(p0, p1, v0, v1, h):
+    s = np.linspace(0.0, 1.0, 20001)
+    # derivative of the cubic Hermite basis, independent of the closed form
+    vel = (
+        (6 * s**2 - 6 * s) * p0
+        + (3 * s**2 - 4 * s + 1) * v0 * h
+        + (-6 * s**2 + 6 * s) * p1
+        + (3 * s**2 - 2 * s) * v1 * h
+    ) / h
+    sampled = float(np.max(np.abs(vel)))
+    peak = ac.hermite_peak_speed(p0, p1, v0, v1, h)
+    assert peak >= sampled - 1e-9
+    assert peak <= sampled + 1e-3 * (1.0 + sampled)
+
+
+@settings(max_examples=100, deadline=None)
+@given(valid_goals(partial=False), st.floats(1e-3, 0.3))
+def test_judge_succeeds_on_the_path_and_flags_a_deviation(case, deviation):
+    goal, current = case
+    n = goal.joint_names[0]
+    goal = ac.TrajectoryGoal(
+        goal.joint_names,
+        goal.times_s,
+        goal.positions,
+        path_tolerance={n: deviation},
+        goal_tolerance={},
+    )
+    final = list(goal.positions[-1])
+    judge = ac.TrajectoryJudge(goal, CONTRACT)
+    mid = 0.5 * goal.times_s[-1]
+    desired = [current[x] for x in goal.joint_names]
+    assert not judge.check(mid, desired, desired).done
+    assert judge.check(goal.times_s[-1], final, final).status == ac.SUCCEEDED
+    judge = ac.TrajectoryJudge(goal, CONTRACT)
+    off = list(desired)
+    off[0] += deviation * 1.01
+    out = judge.check(mid, desired, off)
+    assert (out.status, out.error_code) == (ac.ABORTED, ac.PATH_TOLERANCE_VIOLATED)
+    assert n in out.message
+
+
+def test_judge_goal_tolerance_and_settle_time():
+    names = list(m.ARM_JOINTS)
+    final = [REST[n] for n in names]
+    goal = ac.TrajectoryGoal(names, [2.0], [final], goal_time_tolerance_s=0.5)
+    judge = ac.TrajectoryJudge(goal, CONTRACT)
+    near = list(final)
+    near[3] += 2 * CONTRACT.default_goal_tolerance_rad
+    assert not judge.check(2.2, final, near).done  # still settling
+    assert not judge.check(2.3, final, final, at_rest=False).done  # within but moving
+    out = judge.check(2.51, final, near)
+    assert (out.status, out.error_code) == (ac.ABORTED, ac.GOAL_TOLERANCE_VIOLATED)
+    assert names[3] in out.message
+    # negative tolerance: no goal tolerance for that joint
+    goal = ac.TrajectoryGoal(names, [2.0], [final], goal_tolerance={names[3]: -1.0})
+    assert ac.TrajectoryJudge(goal, CONTRACT).check(2.0, final, near).status == ac.SUCCEEDED
+
+
+def test_errors_are_not_wrapped_on_bounded_joints():
+    """Near the pan joint's ends, -3.0 and 2.8 are 5.8 rad apart, not 0.48."""
+    n = m.ARM_JOINTS[0]
+    goal = ac.TrajectoryGoal([n], [5.0], [[2.8]])
+    judge = ac.TrajectoryJudge(goal, CONTRACT)
+    out = judge.check(7.0, [2.8], [-3.0])
+    assert out.error_code == ac.GOAL_TOLERANCE_VIOLATED
+    assert "5.8000" in out.message
+
+
+@settings(max_examples=200, deadline=None)
+@given(pos=_any_float, effort=_any_float, arm=st.booleans())
+def test_gripper_validation(pos, effort, arm):
+    verdict = ac.validate_gripper(ac.GripperGoal(pos, effort), arm_active=arm)
+    ok = (
+        math.isfinite(pos)
+        and m.GRIPPER_CLOSED - 1e-6 <= pos <= m.GRIPPER_OPEN + 1e-6
+        and math.isfinite(effort)
+        and effort >= 0
+        and not arm
+    )
+    assert verdict.ok == ok
+    assert verdict.error_code in (ac.SUCCESSFUL, ac.INVALID_GOAL)
+    if arm and not ok:
+        assert verdict.error_string
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    start=st.floats(m.GRIPPER_CLOSED, m.GRIPPER_OPEN),
+    goal=st.floats(m.GRIPPER_CLOSED, m.GRIPPER_OPEN),
+    block_frac=st.floats(0.2, 0.8),
+)
+def test_gripper_judge_reaches_or_stalls(start, goal, block_frac):
+    contract = ac.ArmContract()
+    dt = 0.01
+    speed = m.JOINT_MAX_SPEED["katana_r_finger_joint"]
+    # Free fingers following the ideal ramp reach the goal.
+    judge = ac.GripperJudge(ac.GripperGoal(goal), start, contract)
+    t, out = 0.0, judge.outcome
+    while not out.done:
+        t += dt
+        out = judge.check(t, judge.ideal(t), speed)
+        assert t < judge.time_limit_s + 1.0
+    assert out.reached_goal and out.status == ac.SUCCEEDED
+    # Fingers stopped by a block part-way: stalled, not reached.
+    if abs(goal - start) < 0.2:
+        return
+    stop = start + block_frac * (goal - start)
+    judge = ac.GripperJudge(ac.GripperGoal(goal), start, contract)
+    t, pos, out = 0.0, start, judge.outcome
+    while not out.done:
+        t += dt
+        ideal = judge.ideal(t)
+        moving = (ideal - stop) * (goal - start) < 0
+        pos = ideal if moving else stop
+        out = judge.check(t, pos, speed if moving else 0.0)
+        assert t < judge.time_limit_s + 1.0
+    assert out.stalled and not out.reached_goal and out.status == ac.SUCCEEDED
+    assert abs(out.position - stop) < 1e-9
+
+
+def test_contract_settings_are_checked():
+    with pytest.raises(ValueError, match="max_trajectory_s"):
+        ac.ArmContract(max_trajectory_s=math.inf)
+    with pytest.raises(ValueError, match="6M90A"):
+        ac.ArmContract(model="450_6m90a")

@@ -1,0 +1,67 @@
+"""Action messages <-> katana_description.arm_contract goals and outcomes, for the node."""
+
+from __future__ import annotations
+
+import math
+
+from katana_common.conversions import duration_msg, to_seconds
+from katana_description import arm_contract as ac
+from katana_interfaces.action import FollowJointTrajectory, GripperCommand
+from trajectory_msgs.msg import JointTrajectoryPoint
+
+from katana_driver.core.encoders import ARM_JOINTS
+from katana_driver.core.motion import TrajectoryFeedback
+
+RESET_MESSAGE = (
+    "hardware backend: the blocks cannot be reset by software; an operator must scatter them "
+    "by hand in the play area, then continue"
+)
+
+
+def trajectory_goal(msg: FollowJointTrajectory.Goal) -> ac.TrajectoryGoal | ac.Verdict:
+    """The contract's goal, or a refusal for what the contract does not see (the velocity and
+    acceleration parts of the tolerances must be finite too)."""
+    for kind, tolerances in (("path", msg.path_tolerance), ("goal", msg.goal_tolerance)):
+        for tol in tolerances:
+            if not (math.isfinite(tol.velocity) and math.isfinite(tol.acceleration)):
+                why = f"{kind} tolerance of {tol.name!r} is not finite"
+                return ac.Verdict(ac.INVALID_GOAL, why)
+    points = msg.trajectory.points
+    return ac.TrajectoryGoal(
+        joint_names=list(msg.trajectory.joint_names),
+        times_s=[to_seconds(pt.time_from_start) for pt in points],
+        positions=[list(pt.positions) for pt in points],
+        velocities=[list(pt.velocities) for pt in points],
+        path_tolerance=[(t.name, t.position) for t in msg.path_tolerance],
+        goal_tolerance=[(t.name, t.position) for t in msg.goal_tolerance],
+        goal_time_tolerance_s=to_seconds(msg.goal_time_tolerance),
+    )
+
+
+def trajectory_feedback(fb: TrajectoryFeedback, stamp) -> FollowJointTrajectory.Feedback:
+    msg = FollowJointTrajectory.Feedback(joint_names=list(ARM_JOINTS))
+    msg.header.stamp = stamp
+    at = duration_msg(max(0.0, fb.elapsed_s))
+    msg.desired = JointTrajectoryPoint(positions=fb.desired, time_from_start=at)
+    msg.actual = JointTrajectoryPoint(positions=fb.actual, time_from_start=at)
+    msg.error = JointTrajectoryPoint(positions=fb.error, time_from_start=at)
+    return msg
+
+
+def trajectory_result(outcome: ac.Outcome) -> FollowJointTrajectory.Result:
+    return FollowJointTrajectory.Result(error_code=outcome.error_code,
+                                        error_string=outcome.message)
+
+
+def gripper_goal(msg: GripperCommand.Goal) -> ac.GripperGoal:
+    return ac.GripperGoal(position=msg.command.position, max_effort=msg.command.max_effort)
+
+
+def gripper_result(outcome: ac.GripperOutcome) -> GripperCommand.Result:
+    return GripperCommand.Result(position=float(outcome.position), effort=float(outcome.effort),
+                                 stalled=outcome.stalled, reached_goal=outcome.reached_goal)
+
+
+def gripper_feedback(outcome: ac.GripperOutcome) -> GripperCommand.Feedback:
+    return GripperCommand.Feedback(position=float(outcome.position), effort=float(outcome.effort),
+                                   stalled=outcome.stalled, reached_goal=outcome.reached_goal)

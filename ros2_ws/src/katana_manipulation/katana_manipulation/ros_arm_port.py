@@ -1,0 +1,101 @@
+"""RosArmPort: the pick-and-place sequence's arm port (core.pick_place.ArmPort) over the arm and
+gripper actions and joint_states of a PickPlaceExecutor node. Every wait is bounded in wall time
+and ends at once when the node stops (katana_common.futures)."""
+
+from __future__ import annotations
+
+import time
+
+from action_msgs.msg import GoalStatus
+from katana_common.conversions import duration_msg
+from katana_common.futures import Stopped, wait_for_future
+from katana_description import models as m
+from katana_interfaces.action import FollowJointTrajectory, GripperCommand
+from rclpy.action import ActionClient
+from trajectory_msgs.msg import JointTrajectoryPoint
+
+from katana_manipulation.core import pick_place as pp
+
+ARM_ACTION = "arm_controller/follow_joint_trajectory"
+GRIPPER_ACTION = "gripper_controller/gripper_command"
+
+
+class RosArmPort:
+    """pp.ArmPort over the arm and gripper actions; every call returns within its bound."""
+
+    def __init__(self, node) -> None:
+        self.node = node
+        self.commanded: list[float] | None = None  # last arm pose a move succeeded to
+
+    def _send(self, client: ActionClient, name: str, goal, result_timeout_s: float):
+        """(result, '') or (None, why) for a refusal or ("timeout", why) for a wait that ran out.
+        Raises Stopped when the node stops."""
+        n = self.node
+        wait_s = n.params["server_timeout_s"]
+        if not client.server_is_ready():
+            deadline = time.monotonic() + wait_s
+            while not client.server_is_ready():
+                if n.stopping.wait(0.02) or time.monotonic() > deadline:
+                    if n.stopping.is_set():
+                        raise Stopped(f"{name}: stopped")
+                    return "timeout", f"action server {name} not available"
+        try:
+            handle = wait_for_future(client.send_goal_async(goal), wait_s, name, n.stopping)
+        except TimeoutError:
+            return "timeout", f"{name}: no answer to the goal"
+        if handle is None or not handle.accepted:
+            return None, f"{name}: goal rejected"
+        try:
+            return wait_for_future(handle.get_result_async(), result_timeout_s, name,
+                                   n.stopping), ""
+        except (TimeoutError, Stopped) as exc:
+            handle.cancel_goal_async()
+            if isinstance(exc, Stopped):
+                raise
+            return "timeout", f"{name}: no result within {result_timeout_s:.1f} s"
+
+    def _timeout_s(self, planned_s: float) -> float:
+        return planned_s * self.node.params["time_scale"] + self.node.params["timeout_margin_s"]
+
+    def move(self, points: list[list[float]], times: list[float],
+             velocities: list[list[float]] | None = None) -> pp.MoveResult:
+        goal = FollowJointTrajectory.Goal()
+        goal.trajectory.joint_names = list(m.ARM_JOINTS)
+        vels = velocities or [[] for _ in points]
+        goal.trajectory.points = [
+            JointTrajectoryPoint(positions=list(q), velocities=list(v),
+                                 time_from_start=duration_msg(t))
+            for q, v, t in zip(points, vels, times, strict=True)
+        ]
+        self.commanded = None  # until this move has succeeded
+        res, why = self._send(self.node.arm_client, ARM_ACTION, goal, self._timeout_s(times[-1]))
+        if res is None or res == "timeout":
+            return pp.MoveResult(False, why, timed_out=res == "timeout")
+        if res.result.error_code != FollowJointTrajectory.Result.SUCCESSFUL:
+            msg = res.result.error_string or f"error code {res.result.error_code}"
+            return pp.MoveResult(False, msg)
+        self.commanded = [float(v) for v in points[-1]]
+        return pp.MoveResult(True)
+
+    def grip(self, position: float, effort: float) -> pp.GripResult:
+        goal = GripperCommand.Goal()
+        goal.command.position = float(position)
+        goal.command.max_effort = float(effort)
+        res, why = self._send(self.node.gripper_client, GRIPPER_ACTION, goal, self._timeout_s(3.0))
+        if res is None or res == "timeout":
+            return pp.GripResult(False, message=why, timed_out=res == "timeout")
+        r = res.result
+        ok = res.status == GoalStatus.STATUS_SUCCEEDED
+        return pp.GripResult(ok, r.position, r.stalled, r.reached_goal,
+                             "" if ok else f"gripper goal ended with status {res.status}")
+
+    def joint_positions(self) -> dict[str, float] | None:
+        n = self.node
+        deadline = time.monotonic() + n.params["server_timeout_s"]
+        while time.monotonic() < deadline and not n.stopping.is_set():
+            with n.state_lock:
+                latest = n.latest_joints
+            if latest is not None:
+                return dict(latest)
+            n.stopping.wait(0.01)
+        return None

@@ -1,0 +1,33 @@
+"""Parameter specs the perception nodes share (besides katana_common.scene.SCENE_PARAMS)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from katana_common.param_spec import Param
+
+from .core.colors import color_table_strings, parse_color_table
+
+#: katana-calibrate's extrinsics; when set it replaces camera_position and camera_rpy
+EXTRINSICS_FILE = Param(
+    "extrinsics_file", "",
+    "Extrinsics YAML written by katana-calibrate; when set it replaces camera_position and "
+    "camera_rpy (read-only).")
+
+COLOR_TABLE = Param(
+    "color_table", color_table_strings(),
+    "One entry per block colour, 'name:lo-hi[,lo-hi]' hue intervals on OpenCV's 0..179 "
+    "scale; the name is the block id (read-only).", min_length=1)
+
+
+def check_files_and_colors(values) -> str | None:
+    """Cross-check of the shared specs: the extrinsics file exists, the colour table parses."""
+    path = values.get("extrinsics_file", "")
+    if path and not Path(path).is_file():
+        return f"parameter 'extrinsics_file': no such file {path!r}"
+    if "color_table" in values:
+        try:
+            parse_color_table(values["color_table"])
+        except ValueError as err:
+            return f"parameter 'color_table': {err}"
+    return None

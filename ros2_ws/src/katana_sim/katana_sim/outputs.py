@@ -1,0 +1,81 @@
+"""sim_node's periodic outputs: /clock, joint_states, sim/ground_truth and the camera, due in
+simulated time (katana_sim.core.pacing.Schedule), with the node's publishers and QoS. /clock and
+joint_states are also capped in wall time (WALL_CAP_S; a motion's end always publishes both)."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+from katana_common.conversions import time_msg
+from katana_common.qos import CLOCK_QOS, JOINT_STATE_QOS, SENSOR_QOS, STATE_QOS
+from katana_interfaces.msg import BlockArray
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import CameraInfo, Image, JointState
+
+from katana_sim import messages as msgs
+from katana_sim.core import pacing
+from katana_sim.sim_params import RATE_PARAMS
+
+#: faster than real time, at most one per this many wall seconds: more would only load the
+#: subscribers (every node with use_sim_time takes /clock); a motion's end publishes both anyway
+WALL_CAP_S = {"clock": 0.02, "joints": 0.04, "truth": 0.1}
+
+
+class SimOutputs:
+    """Publishes what is due at the world's time; call `publish_due` under the world's lock."""
+
+    def __init__(self, node, world, stopping: threading.Event) -> None:
+        self.node, self.world, self.stopping = node, world, stopping
+        params = node.params
+        self.frame = params["world_frame"]
+        self.schedule = pacing.Schedule({k: params[v] for k, v in RATE_PARAMS.items()})
+        self._wall_next = dict.fromkeys(WALL_CAP_S, 0.0)
+        self.capped = node.rtf == 0.0 or node.rtf > 1.0  # faster than real time
+        self._render_wall = 0.0
+        self.image_pub = node.create_publisher(Image, "camera/image_raw", SENSOR_QOS)
+        self.info_pub = node.create_publisher(CameraInfo, "camera/camera_info", SENSOR_QOS)
+        self.joint_pub = node.create_publisher(JointState, "joint_states", JOINT_STATE_QOS)
+        self.truth_pub = node.create_publisher(BlockArray, "sim/ground_truth", STATE_QOS)
+        self.clock_pub = (node.create_publisher(Clock, "/clock", CLOCK_QOS)
+                          if params["publish_clock"] else None)
+
+    def set_rates(self, changed: dict) -> None:
+        for out, name in RATE_PARAMS.items():
+            if name in changed:
+                self.schedule.set_rate(out, float(changed[name]))
+
+    def ground_truth_msg(self) -> BlockArray:
+        return msgs.ground_truth_msg(self.world, self.frame)
+
+    def publish_due(self, images: bool, force: bool = False) -> None:
+        """Publish what is due at the world's time (call under the lock). Once a signal has
+        shut the context down, publishing fails: then stop quietly (run_node will clean up)."""
+        try:
+            self._publish(images, force)
+        except Exception:
+            if self.node.context.ok() and not self.stopping.is_set():
+                raise
+            self.stopping.set()
+
+    def _publish(self, images: bool, force: bool) -> None:
+        t, wall = self.world.time, time.monotonic()
+        due = set(self.schedule.due(t, None if images else ("clock", "joints", "truth")))
+        if force:
+            due |= {"clock", "joints"}
+        for name, cap in WALL_CAP_S.items() if self.capped else ():
+            if name in due and not force and wall < self._wall_next[name]:
+                due.discard(name)
+            elif name in due:
+                self._wall_next[name] = wall + cap
+        if "clock" in due and self.clock_pub is not None:
+            self.clock_pub.publish(Clock(clock=time_msg(t)))
+        if "joints" in due:
+            self.joint_pub.publish(msgs.joint_state_msg(self.world))
+        if "truth" in due:
+            self.truth_pub.publish(self.ground_truth_msg())
+        if "camera" in due and wall - self._render_wall >= self.schedule.period("camera") * 0.99:
+            self._render_wall = wall  # at most camera_rate renders per wall second, too
+            if self.image_pub.get_subscription_count() or self.info_pub.get_subscription_count():
+                self.image_pub.publish(msgs.image_msg(self.world))
+                self.info_pub.publish(msgs.camera_info_msg(self.world))

@@ -1,0 +1,151 @@
+"""SIGINT and SIGTERM end sim_node and pick_place_executor within 2 s, idle or mid-motion, with
+exit code 0 and no traceback; both run as separate processes, as `ros2 launch` starts them, and
+the executor works under use_sim_time with the sim's /clock (issue 10 §2)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import rclpy
+from builtin_interfaces.msg import Duration
+from geometry_msgs.msg import Pose
+from katana_description import models as m
+from katana_interfaces.action import FollowJointTrajectory, PickAndPlace
+from rcl_interfaces.srv import GetParameters
+from rclpy.action import ActionClient
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from trajectory_msgs.msg import JointTrajectoryPoint
+
+pytestmark = pytest.mark.timeout(300)
+NODE_LIMIT_S = 2.0  # issue 10 §2
+
+
+@pytest.fixture
+def probe(monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(120 + os.getpid() % 100))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = Node("arm_signal_probe", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    procs: list[subprocess.Popen] = []
+    yield node, ex, procs
+    for proc in procs:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    ex.shutdown()
+    node.destroy_node()
+    rclpy.try_shutdown(context=ctx)
+
+
+def _start(procs, module: str, *params: str) -> subprocess.Popen:
+    args = [sys.executable, "-m", module, "--ros-args", "-p", "use_sim_time:=true"]
+    for p in params:
+        args += ["-p", p]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    procs.append(proc)
+    return proc
+
+
+def _spin_until(ex, cond, what: str, proc=None, timeout_s: float = 90.0):
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        if proc is not None:
+            assert proc.poll() is None, proc.communicate()[1]
+        assert time.monotonic() < deadline, what
+        ex.spin_once(timeout_sec=0.05)
+
+
+def _spinning(node, ex, proc, name: str) -> None:
+    """Wait until `name` answers a service call: its executor spins (a signal before that
+    tests katana_common's start-up, not this node)."""
+    client = node.create_client(GetParameters, f"{name}/get_parameters")
+    _spin_until(ex, client.service_is_ready, f"{name} has no parameter service", proc)
+    future = client.call_async(GetParameters.Request(names=["use_sim_time"]))
+    _spin_until(ex, future.done, f"{name} does not answer", proc)
+    assert future.result().values[0].bool_value  # runs with use_sim_time
+
+
+def _stop(proc, sig) -> tuple[float, str]:
+    start = time.monotonic()
+    proc.send_signal(sig)
+    try:
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    took = time.monotonic() - start
+    out, err = proc.communicate()
+    assert proc.returncode == 0, err
+    assert "Traceback" not in out + err, err
+    return took, err
+
+
+def _long_trajectory() -> FollowJointTrajectory.Goal:
+    goal = FollowJointTrajectory.Goal()
+    goal.trajectory.joint_names = list(m.ARM_JOINTS)
+    goal.trajectory.points = [JointTrajectoryPoint(positions=[0.5, 1.2, -1.5, 1.2, 0.5],
+                                                   time_from_start=Duration(sec=8))]
+    return goal
+
+
+SIGNALS = pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM],
+                                  ids=["SIGINT", "SIGTERM"])
+
+
+@SIGNALS
+@pytest.mark.parametrize("moving", [False, True], ids=["idle", "mid-motion"])
+def test_a_signal_ends_sim_node_cleanly(probe, sig, moving):
+    node, ex, procs = probe
+    sim = _start(procs, "katana_sim.sim_node", "real_time_factor:=1.0", "camera_rate:=5.0")
+    client = ActionClient(node, FollowJointTrajectory, "arm_controller/follow_joint_trajectory")
+    _spin_until(ex, client.server_is_ready, "sim_node never served its arm action", sim)
+    _spinning(node, ex, sim, "sim_node")
+    if moving:  # signal while the arm follows an 8 s trajectory
+        feedback: list = []
+        sent = client.send_goal_async(_long_trajectory(), feedback_callback=feedback.append)
+        _spin_until(ex, lambda: len(feedback) >= 2, "no feedback: the arm is not moving", sim)
+        assert sent.result().accepted
+    took, _ = _stop(sim, sig)
+    assert took <= NODE_LIMIT_S, f"sim_node took {took:.2f} s to stop"
+
+
+def _pick_goal() -> PickAndPlace.Goal:
+    goal = PickAndPlace.Goal(block_id="any")
+    goal.pick, goal.place = Pose(), Pose()
+    goal.pick.position.x, goal.pick.position.z, goal.pick.orientation.w = 0.2, 0.015, 1.0
+    goal.place.position.x, goal.place.position.y = 0.2, 0.1
+    goal.place.position.z, goal.place.orientation.w = 0.015, 1.0
+    goal.block_size.x, goal.block_size.y, goal.block_size.z = m.BLOCK_SIZE
+    return goal
+
+
+@SIGNALS
+@pytest.mark.parametrize("moving", [False, True], ids=["idle", "mid-motion"])
+def test_a_signal_ends_pick_place_executor_cleanly(probe, sig, moving):
+    node, ex, procs = probe
+    sim = _start(procs, "katana_sim.sim_node", "real_time_factor:=1.0", "camera_rate:=0.0")
+    executor = _start(procs, "katana_manipulation.pick_place_executor")
+    client = ActionClient(node, PickAndPlace, "pick_and_place")
+    _spin_until(ex, client.server_is_ready, "no pick_and_place server", executor)
+    _spinning(node, ex, sim, "sim_node")
+    _spinning(node, ex, executor, "pick_place_executor")
+    phases: list[str] = []
+    if moving:  # signal while the arm approaches the block (the executor waits on the sim)
+        client.send_goal_async(_pick_goal(),
+                               feedback_callback=lambda f: phases.append(f.feedback.phase))
+        _spin_until(ex, lambda: "approach" in phases, "the executor never moved the arm",
+                    executor)
+    took, _ = _stop(executor, sig)
+    assert took <= NODE_LIMIT_S, f"pick_place_executor took {took:.2f} s to stop"
+    took, _ = _stop(sim, sig)
+    assert took <= NODE_LIMIT_S, f"sim_node took {took:.2f} s to stop"
