@@ -23,6 +23,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from katana_common.cli_args import (
+    non_negative_int,
+    positive_int,
+    positive_seconds,
+    writable_folder,
+)
 
 from .run import (
     EXECUTOR_THREADS,
@@ -133,19 +139,19 @@ class FrameRecorder:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="katana-demo", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--experiments", type=int, default=200, help="experiments to run")
-    parser.add_argument("--out", type=Path, default=None,
+    parser.add_argument("--experiments", type=positive_int, default=200,
+                        help="experiments to run")
+    parser.add_argument("--out", type=writable_folder, default=None,
                         help="run folder (default runs/demo-<time>; an existing one resumes)")
     parser.add_argument("--strategy", default=None, help="q1 (default), q10, conf or random")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the sim and the learner")
+    parser.add_argument("--seed", type=non_negative_int, default=0,
+                        help="seed of the sim and the learner")
     add_graph_arguments(parser)  # --backend, --params (overlays), --record
     parser.add_argument("--real-time-factor", type=float, default=0.0,
                         help="sim pace: 0 as fast as possible (default), 1 wall-clock")
-    parser.add_argument("--timeout", type=float, default=None, metavar="S",
+    parser.add_argument("--timeout", type=positive_seconds, default=None, metavar="S",
                         help="give up after S wall seconds (default: 30 s per experiment)")
     args, ros_args = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
-    if args.experiments < 1:
-        parser.error(f"--experiments must be >= 1, got {args.experiments}")
     if args.real_time_factor < 0:
         parser.error("--real-time-factor must be >= 0")
     out = args.out or Path("runs") / f"demo-{datetime.now():%Y%m%d-%H%M%S}"

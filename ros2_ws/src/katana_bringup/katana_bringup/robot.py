@@ -39,6 +39,12 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
+from katana_common.cli_args import (
+    non_negative_int,
+    positive_int,
+    positive_seconds,
+    writable_folder,
+)
 
 from .run import default_params_files, load_params
 
@@ -759,35 +765,28 @@ def cmd_skill(args) -> int:
 # -- command line --------------------------------------------------------------------------
 
 
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="katana-robot", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
     t = sub.add_parser("truth", help="measure P(stays) per (height, action) in the sim")
-    t.add_argument("--trials", type=_positive, default=30, help="placements per pair")
-    t.add_argument("--out", default="runs/robot-truth")
-    t.add_argument("--seed", type=int, default=0, help="first reset seed")
+    t.add_argument("--trials", type=positive_int, default=30, help="placements per pair")
+    t.add_argument("--out", type=writable_folder, default="runs/robot-truth")
+    t.add_argument("--seed", type=non_negative_int, default=0, help="first reset seed")
     t.add_argument("--max-height", type=int, default=3, choices=range(1, 4))
     t.add_argument("--actions", type=int, default=6, choices=(6,))
 
     p = sub.add_parser("paper", help="multi-seed robot runs against the measured truth")
-    p.add_argument("--seeds", type=_positive, default=4)
-    p.add_argument("--seed0", type=int, default=0, help="first seed")
-    p.add_argument("--experiments", type=_positive, default=60)
+    p.add_argument("--seeds", type=positive_int, default=4)
+    p.add_argument("--seed0", type=non_negative_int, default=0, help="first seed")
+    p.add_argument("--experiments", type=positive_int, default=60)
     p.add_argument("--methods", default="q1,random")
-    p.add_argument("--jobs", type=_positive, default=2, help="runs at a time")
-    p.add_argument("--out", default="runs/robot-paper")
+    p.add_argument("--jobs", type=positive_int, default=2, help="runs at a time")
+    p.add_argument("--out", type=writable_folder, default="runs/robot-paper")
     p.add_argument("--truth", default="runs/robot-truth/truth.json")
     p.add_argument("--domain-base", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", 0)),
                    help="ROS domain of the first parallel slot (default: $ROS_DOMAIN_ID)")
-    p.add_argument("--run-timeout", type=float, default=None, metavar="S")
+    p.add_argument("--run-timeout", type=positive_seconds, default=None, metavar="S")
     p.add_argument("--contact-first", type=int, default=0,
                    help="first experiment of the contact sheet (first run)")
     p.add_argument("--no-contact-sheet", action="store_true")
@@ -796,11 +795,12 @@ def main(argv: list[str] | None = None) -> int:
 
     s = sub.add_parser("skill", help="build_stack with a learned and an untrained model")
     s.add_argument("--goal-height", type=int, default=3, choices=range(1, 5))
-    s.add_argument("--trials", type=_positive, default=10)
+    s.add_argument("--trials", type=positive_int, default=10)
     s.add_argument("--model", required=True, help="a run folder (learner.npz) or a file")
-    s.add_argument("--seed", type=int, default=100, help="reset seed of the first trial")
-    s.add_argument("--max-placements", type=_positive, default=12)
-    s.add_argument("--out", default="runs/robot-skill")
+    s.add_argument("--seed", type=non_negative_int, default=100,
+                   help="reset seed of the first trial")
+    s.add_argument("--max-placements", type=positive_int, default=12)
+    s.add_argument("--out", type=writable_folder, default="runs/robot-skill")
     s.add_argument("--no-untrained", action="store_true")
 
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)

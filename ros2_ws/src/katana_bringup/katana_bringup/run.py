@@ -19,7 +19,6 @@ learner). `--layers` starts a subset, e.g. only the arm for a manipulation check
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 from collections.abc import Callable
@@ -27,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from katana_common.cli_args import positive_seconds
 from katana_common.node_runner import EXIT_INVALID_CONFIGURATION, spin_nodes
 from katana_common.params import ParameterError
 
@@ -213,16 +213,6 @@ def _layers(text: str) -> list[str]:
     return layers
 
 
-def _positive_seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"a number of seconds > 0, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"a number of seconds > 0, got {text!r}")
-    return value
-
-
 def _readable_yaml(text: str) -> Path:
     path = Path(text)
     if not path.is_file() or not os.access(path, os.R_OK):
@@ -286,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     add_graph_arguments(parser)
     parser.add_argument("--layers", type=_layers, default=list(LAYERS), metavar="L[,L]",
                         help=f"which parts of the graph to start (default: {','.join(LAYERS)})")
-    parser.add_argument("--duration", type=_positive_seconds, default=None, metavar="S",
+    parser.add_argument("--duration", type=positive_seconds, default=None, metavar="S",
                         help="stop after S wall seconds (default: run until Ctrl-C)")
     own, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
     args = parser.parse_args(own)

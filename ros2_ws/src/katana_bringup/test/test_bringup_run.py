@@ -177,3 +177,28 @@ def test_executables_are_installed_where_ros2_run_looks():
                      ("katana_driver", "katana_driver_node"), ("katana_camera", "camera_node")]:
         path = Path(prefix) / pkg / "lib" / pkg / exe
         assert path.is_file() and os.access(path, os.X_OK), path
+
+
+@pytest.mark.parametrize(
+    "tool, args, option",
+    [
+        ("katana-demo", ["--experiments", "0"], "--experiments"),
+        ("katana-demo", ["--out", "/proc/no/such/folder"], "--out"),
+        ("katana-demo", ["--timeout", "-1"], "--timeout"),
+        ("katana-demo", ["--seed", "-2"], "--seed"),
+        ("katana-robot", ["truth", "--out", "/proc/no/such/folder"], "--out"),
+        ("katana-robot", ["truth", "--trials", "0"], "--trials"),
+        ("katana-robot", ["paper", "--run-timeout", "-5"], "--run-timeout"),
+        ("katana-robot", ["skill", "--goal-height", "9", "--model", "x"], "--goal-height"),
+    ],
+)
+def test_console_tools_check_every_option_before_any_work(capsys, tool, args, option):
+    """One line naming the option, the (sub)command's usage, exit 2; no graph is started."""
+    from katana_bringup import demo, robot
+
+    main = demo.main if tool == "katana-demo" else robot.main
+    with pytest.raises(SystemExit) as exit_info:
+        main(args)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert f"error: argument {option}" in err and "usage: " + tool in err

@@ -4,34 +4,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 import time
-from pathlib import Path
 
+from katana_common.cli_args import non_negative_int, positive_int, writable_folder
 from tqdm import tqdm
 
 from .core.experiments import DEFAULT_METHODS, RunConfig, run, run_many, save_results
 from .core.explorer import STRATEGIES
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
-
-
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
 
 
 def _discount(text: str) -> float:
@@ -39,21 +18,6 @@ def _discount(text: str) -> float:
     if not 0.0 <= value < 1.0:
         raise argparse.ArgumentTypeError(f"must be in [0, 1), got {value}")
     return value
-
-
-def _writable_folder(text: str) -> Path:
-    """--out: created if missing and probed with a temporary file, before any work, so a run
-    never ends on an unwritable folder (a permission check alone does not see read-only or
-    virtual file systems, nor root's rights)."""
-    path = Path(text)
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=path):
-            pass
-    except OSError as err:
-        raise argparse.ArgumentTypeError(
-            f"cannot write in {path}: {err.strerror or err}") from None
-    return path
 
 
 def _methods(text: str) -> list[str]:
@@ -82,12 +46,12 @@ def _positive_float(text: str) -> float:
 
 
 def _add_common(p: argparse.ArgumentParser, steps: int, seeds: int, methods: str) -> None:
-    p.add_argument("--steps", type=_positive_int, default=steps, help="experiments per run")
+    p.add_argument("--steps", type=positive_int, default=steps, help="experiments per run")
     p.add_argument(
-        "--seeds", type=_positive_int, default=seeds, help="runs per method (seeds 0..K-1)"
+        "--seeds", type=positive_int, default=seeds, help="runs per method (seeds 0..K-1)"
     )
-    p.add_argument("--first-seed", type=_non_negative_int, default=0, help="first seed, >= 0")
-    p.add_argument("--jobs", type=_positive_int, default=1, help="worker processes")
+    p.add_argument("--first-seed", type=non_negative_int, default=0, help="first seed, >= 0")
+    p.add_argument("--jobs", type=positive_int, default=1, help="worker processes")
     p.add_argument(
         "--methods",
         type=_methods,
@@ -97,7 +61,7 @@ def _add_common(p: argparse.ArgumentParser, steps: int, seeds: int, methods: str
     p.add_argument("--alpha", type=_positive_float, default=1.0, help="query condition scale")
     p.add_argument("--theta", type=_unit_interval, default=0.01, help="query threshold, [0, 1]")
     p.add_argument("--gamma", type=_discount, default=0.95, help="discount factor, [0, 1)")
-    p.add_argument("--out", type=_writable_folder, required=True, help="output folder")
+    p.add_argument("--out", type=writable_folder, required=True, help="output folder")
     p.add_argument("--no-figures", action="store_true", help="write summary and CSV only")
 
 
@@ -143,9 +107,9 @@ def _add_sweep(sub) -> None:
         help=f"NAME=V1,V2,... (repeat per axis; alpha, theta, gamma, n_blocks, n_features); "
         f"default {default_grid}",
     )
-    p.add_argument("--steps", type=_positive_int, default=10_000, help="experiments per run")
-    p.add_argument("--seeds", type=_positive_int, default=20, help="runs per cell and method")
-    p.add_argument("--first-seed", type=_non_negative_int, default=0, help="first seed, >= 0")
+    p.add_argument("--steps", type=positive_int, default=10_000, help="experiments per run")
+    p.add_argument("--seeds", type=positive_int, default=20, help="runs per cell and method")
+    p.add_argument("--first-seed", type=non_negative_int, default=0, help="first seed, >= 0")
     p.add_argument(
         "--methods",
         type=_methods,
@@ -155,7 +119,7 @@ def _add_sweep(sub) -> None:
     p.add_argument("--alpha", type=_positive_float, default=1.0, help="alpha where not swept")
     p.add_argument("--theta", type=_unit_interval, default=0.01, help="theta where not swept")
     p.add_argument("--gamma", type=_discount, default=0.95, help="gamma where not swept, [0, 1)")
-    p.add_argument("--out", type=_writable_folder, required=True,
+    p.add_argument("--out", type=writable_folder, required=True,
                    help="output folder (resumed if it exists)")
     p.add_argument(
         "--address",
@@ -163,7 +127,7 @@ def _add_sweep(sub) -> None:
         help="an existing Ray cluster (e.g. ray://head:10001 or auto); default: a local Ray",
     )
     p.add_argument(
-        "--num-cpus", type=_positive_int, default=2, help="CPUs of the local Ray (no --address)"
+        "--num-cpus", type=positive_int, default=2, help="CPUs of the local Ray (no --address)"
     )
     p.add_argument("--no-figures", action="store_true", help="write sweep.csv and summary only")
 
