@@ -22,6 +22,7 @@ from katana_common.qos import EVENT_QOS, SENSOR_QOS, STATE_QOS
 from katana_common.scene import SCENE_PARAMS
 from katana_interfaces.msg import BlockArray
 from katana_interfaces.srv import JudgePlacement
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
@@ -93,7 +94,10 @@ class PerceptionNode(Node):
         self.create_subscription(CameraInfo, "camera/camera_info", self.on_camera_info,
                                  SENSOR_QOS)
         self.create_subscription(BlockArray, "memory/blocks", self.on_memory_blocks, STATE_QOS)
-        self.create_service(JudgePlacement, "perception/judge_placement", self.on_judge)
+        # own group: a camera faster than segmentation keeps the image subscription ready, and
+        # rclpy serves subscriptions first, so the judge starved behind frames (hardware graph)
+        self.create_service(JudgePlacement, "perception/judge_placement", self.on_judge,
+                            callback_group=MutuallyExclusiveCallbackGroup())
 
     def _apply(self, changed: dict) -> None:
         """Segmentation and judge settings, at start-up and on a live change."""
