@@ -21,7 +21,6 @@ from katana_common.scene import SCENE_PARAMS
 from katana_interfaces.msg import BlockArray
 from katana_interfaces.srv import FindPlacement, ObserveSetting
 from katana_manipulation.core.reach import place_reach_table
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import ColorRGBA, Header
@@ -106,13 +105,8 @@ class FoveaNode(Node):
         self.create_subscription(CameraInfo, "camera/camera_info", self.on_camera_info,
                                  SENSOR_QOS)
         self.create_subscription(Image, "camera/image_raw", self.on_image, SENSOR_QOS)
-        # the services apart from the image subscription, which a fast camera keeps always
-        # ready (rclpy serves subscriptions first): one group, so the two never interleave
-        services = MutuallyExclusiveCallbackGroup()
-        self.create_service(ObserveSetting, "fovea/observe", self.on_observe,
-                            callback_group=services)
-        self.create_service(FindPlacement, "fovea/find_placement", self.on_find,
-                            callback_group=services)
+        self.create_service(ObserveSetting, "fovea/observe", self.on_observe)
+        self.create_service(FindPlacement, "fovea/find_placement", self.on_find)
 
     # ------------------------------------------------------------------ inputs
     def on_camera_info(self, msg: CameraInfo) -> None:
