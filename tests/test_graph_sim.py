@@ -97,9 +97,6 @@ def test_graph_matches_design_and_stacks_a_block(ros_graph):
                       blocks["red"].pose.position.y - blue.pose.position.y) < 0.005
 
 
-@pytest.mark.xfail(strict=False, reason="known bug, issue 10 open: block memory's levels after a "
-                   "hand-sent pick_and_place sometimes never match the sim within 20 s; the "
-                   "mechanism is not found yet (seen in a fresh-clone CI run and locally)")
 def test_block_memory_follows_a_hand_sent_pick_and_place_on_sim_time(ros_graph):
     """No curiosity node: block memory learns the new levels from the detections alone, and
     every node of the graph runs on the simulation's clock."""

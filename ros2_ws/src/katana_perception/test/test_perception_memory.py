@@ -129,6 +129,37 @@ def test_scripted_sequence_with_occlusion_falls_and_collapse():
     settle(memory, world, "cyan back on the table")
 
 
+def test_a_move_seen_only_in_images_lands_on_a_block_the_arm_hid_on_the_way():
+    """No experience: red is carried (hidden by the arm) onto blue, and the arm hides blue for a
+    frame before it lets go, so blue has gone missing by the time red appears on it. Red rests
+    on blue. A block that was already gone while red still rested elsewhere takes nothing."""
+    world = World(START)
+    memory = BlockMemory(CALIB)
+    settle(memory, world, "scatter")
+    def arm_over(b):
+        return SceneBlock("arm", b.x, b.y, 0.2, size=(0.07, 0.07, 0.04), rgb=(0.35, 0.35, 0.38))
+
+    carried = world.blocks.pop("red")
+    observe(memory, world.render(arm_over(carried)))  # picked: red is in the gripper
+    observe(memory, world.render(arm_over(world.blocks["blue"])))  # blue hidden as well
+    assert memory.blocks["blue"].missing > 0 and memory.blocks["red"].missing > 0
+    world.blocks["red"] = carried
+    world.put_on("red", "blue", 0.002, -0.002)
+    settle(memory, world, "red on blue, seen only in images")
+    assert memory.blocks["red"].level == 2 and not memory.blocks["blue"].on_top
+
+    # yellow is taken away (no arm seen) while green still rests at its place; green is then
+    # put where yellow was: yellow was gone before green moved, so green is on the table.
+    yellow = world.blocks.pop("yellow")
+    del world.support["yellow"]
+    for _ in range(2):
+        observe(memory, world.render())
+    assert memory.blocks["yellow"].missing == 2 and memory.blocks["green"].visible
+    world.put_table("green", yellow.x + 0.002, yellow.y, yellow.yaw)
+    observe(memory, world.render())
+    assert memory.blocks["green"].support is None and memory.blocks["green"].level == 1
+
+
 def random_experiments(seed: int, steps: int) -> dict:
     rng = np.random.default_rng(seed)
     names = ["red", "green", "blue", "yellow", "orange", "purple"]

@@ -48,6 +48,7 @@ class Block:
     pixel_angle: float = math.nan
     size: tuple[float, float, float] = BLOCK_SIZE
     missing: int = 0  # consecutive updates in which it was neither seen nor covered
+    rest_frame: int = -1  # the last update in which it was seen where it was remembered
 
     @property
     def z(self) -> float:
@@ -96,6 +97,7 @@ class BlockMemory:
     params: MemoryParams = field(default_factory=MemoryParams)
     block_size: tuple[float, float, float] = BLOCK_SIZE
     blocks: dict[str, Block] = field(default_factory=dict)
+    frame: int = 0  # updates folded in so far
 
     # ------------------------------------------------------------------ structure
     def _refresh(self) -> None:
@@ -190,6 +192,7 @@ class BlockMemory:
                 b = Block(s.id, s.color, 0.0, 0.0, 0.0, size=self.block_size)
                 self.blocks[s.id] = b
                 self._place(b, s)
+                b.rest_frame = self.frame
                 moved.add(s.id)
                 events[s.id] = "new"
                 continue
@@ -199,8 +202,10 @@ class BlockMemory:
             if math.hypot(x - b.x, y - b.y) > tol:
                 moved.add(s.id)
                 events[s.id] = "moved"
-            elif s.complete:  # refine from a clean view; a covered block keeps its pose
-                b.x, b.y, b.yaw = x, y, yaw
+            else:
+                b.rest_frame = self.frame
+                if s.complete:  # refine from a clean view; a covered block keeps its pose
+                    b.x, b.y, b.yaw = x, y, yaw
             b.pixel_u, b.pixel_v, b.pixel_angle = s.u, s.v, s.angle
         # Nothing rests on a block whose top face is in full view.
         for s in seen:
@@ -241,6 +246,7 @@ class BlockMemory:
                     del self.blocks[b.id]
                     events[b.id] = "forgotten"
         self._refresh()
+        self.frame += 1
         return events
 
     def _settle(self, bid: str, now: Mapping[str, Seen]) -> bool:
@@ -253,8 +259,10 @@ class BlockMemory:
                 continue  # only a stack top can take a block
             if o.id in now and now[o.id].complete:
                 continue  # its top face is in full view: nothing is on it
-            if o.id not in now and o.missing > 0:
-                continue  # already gone before this image: not something to land on
+            if o.id not in now and o.missing > 0 and self.frame - o.missing < b.rest_frame:
+                # gone while b still rested elsewhere: not something to land on. A block
+                # that vanished during b's transit was hidden by the arm carrying b.
+                continue
             if footprint_overlap(b, o) >= self.params.cover_fraction and (
                 best is None or o.level > best.level
             ):
