@@ -89,7 +89,8 @@ class CuriosityNode(Node):
         self.explorer.steps = replayed
         self.loop = RobotLoop(
             self.environment, self.explorer, self.log,
-            LoopPolicy(max_experiments=p["max_experiments"], stuck_reset=p["stuck_reset"]),
+            LoopPolicy(max_experiments=p["max_experiments"], stuck_reset=p["stuck_reset"],
+                       setting_changes=p["setting_changes"]),
             self._publish_experiment, self.get_logger(), self._stop)
         self.experience_pub = self.create_publisher(Experience, "curiosity/experience", EVENT_QOS)
         self.state_pub = self.create_publisher(LearnerState, "curiosity/learner_state", STATE_QOS)

@@ -35,6 +35,9 @@ PARAMS = (
     Param("reset_service", "", "ResetWorld service; '': the backend's (the one in the graph)."),
     Param("stuck_reset", 3, "Reset after this many experiments in a row offering only the "
           "table (0: never).", 0, 1000),
+    Param("setting_changes", 3, "Resets in a row instead of a planned placement that is known "
+          "and leads to no unknown pair, before the plan is followed anyway (0: never).",
+          0, 1000),
     *(p for p in SCENE_PARAMS if p.name in ("world_frame", "block_size")),
 )
 LIVE = ("alpha", "theta", "gamma", "strategy")

@@ -9,6 +9,7 @@ import sys
 import threading
 import time
 import uuid
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ from katana_common.params import ParameterError
 from katana_common.qos import STATE_QOS
 from katana_curiosity.core.block_choice import PickReach
 from katana_curiosity.core.robot_loop import robot_bank
-from katana_curiosity.core.run_record import replay
+from katana_curiosity.core.run_record import CHECKPOINT_NAME, load_checkpoint, replay
 from katana_curiosity.curiosity_node import CuriosityNode
 from katana_curiosity.robot_environment import BLOCKS_TOPIC
 from katana_interfaces.action import PickAndPlace
@@ -421,6 +422,28 @@ def test_save_answers_failure_when_the_run_folder_is_gone(tmp_path) -> None:
         assert not failed.success and str(run_dir) in failed.message
         again = g.result(client.call_async(Trigger.Request()))  # the node is still serving
         assert not again.success
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
+def test_save_on_a_full_disk_answers_failure_and_keeps_the_last_checkpoint(tmp_path) -> None:
+    """The checkpoint's temporary file is routed to /dev/full, whose writes fail with ENOSPC as
+    on a full disk: ~/save answers why, the previous checkpoint and the log are untouched, and
+    the node keeps serving."""
+    with Graph(tmp_path, max_experiments=1) as g:
+        g.wait(g.node.finished.is_set)
+        client = g.probe.create_client(Trigger, "curiosity_node/save")
+        assert client.wait_for_service(timeout_sec=10.0)
+        assert g.result(client.call_async(Trigger.Request())).success
+        checkpoint = tmp_path / CHECKPOINT_NAME
+        before = checkpoint.read_bytes()
+        log_before = (tmp_path / "experience.jsonl").read_bytes()
+        (tmp_path / "learner.tmp.npz").symlink_to("/dev/full")
+        failed = g.result(client.call_async(Trigger.Request()))
+        assert not failed.success and "No space left on device" in failed.message
+        assert checkpoint.read_bytes() == before and load_checkpoint(checkpoint)[1] == 1
+        assert (tmp_path / "experience.jsonl").read_bytes() == log_before
+        (tmp_path / "learner.tmp.npz").unlink()  # space again: the next save works
+        assert g.result(client.call_async(Trigger.Request())).success
 
 
 def test_stop_ends_the_node_mid_experiment_with_the_log_intact(tmp_path) -> None:

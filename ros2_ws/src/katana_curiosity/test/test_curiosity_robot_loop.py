@@ -5,7 +5,7 @@ import threading
 
 import numpy as np
 from katana_curiosity.core.environment import Outcome, Setting
-from katana_curiosity.core.explorer import Explorer, make_strategy
+from katana_curiosity.core.explorer import PLAN, Choice, Explorer, make_strategy
 from katana_curiosity.core.robot_loop import (
     ExecutionRecord,
     ExperimentAborted,
@@ -14,6 +14,7 @@ from katana_curiosity.core.robot_loop import (
     Stopping,
     Unrealisable,
     feasible_actions,
+    leads_towards_unknown,
     robot_bank,
     set_query_rule,
 )
@@ -181,3 +182,88 @@ def test_the_retry_policy_after_a_failed_pick_and_place() -> None:
     }
     for (result, attempts), action in table.items():
         assert after_failed_pick_place(result, attempts, 2) == action, (result, attempts)
+
+
+class SettingUntilReset:
+    """Offers `before` until the first reset, then `after`; a placement stays as `stays` says."""
+
+    def __init__(self, before, after, stays) -> None:
+        self.before, self.after, self.stays = before, after, stays
+        self.resets = 0
+
+    def wait_until_current(self) -> None:
+        pass
+
+    def mark_experiment_done(self) -> None:
+        pass
+
+    def observe(self) -> Setting:
+        states, actions = zip(*(self.after if self.resets else self.before), strict=True)
+        return Setting.from_pairs(np.array(states), np.array(actions))
+
+    def execute(self, state: int, action: int, index: int | None = None) -> Outcome:
+        inst = InstanceRecord(1.0, 2.0, [False] * 5, [0.0] * 7, [], [0.2, 0.0, 0.015])
+        label = 1 if self.stays(state, action) else -1
+        return Outcome(label, ExecutionRecord(inst, self.resets, [0, 1], "b1", 1, {}))
+
+    def blocks_out_of_reach(self) -> list[str]:
+        return []
+
+    def reset(self) -> str:
+        self.resets += 1
+        return "scattered"
+
+
+def _known_up_to_height_one(arm, tmp_path, setting_changes=3):
+    """A loop whose learner knows heights 0 and 1 (on 1, action 6 stays, action 1 falls) and
+    nothing of height 2: a planned placement is worth making only if it can grow a two-stack."""
+    loop, _ = make_loop(tmp_path, arm, max_experiments=1)
+    loop.policy = LoopPolicy(max_experiments=1, backoff_s=0.0, setting_changes=setting_changes)
+    bank = loop.explorer.bank
+    for _ in range(40):
+        bank.update(0, 0, 1)
+        for a in range(6):
+            bank.update(1, a, 1 if a == 5 else -1)
+    feasible = feasible_actions(3, 6, 1)
+    assert not (bank.unknown[:2] & feasible[:2]).any() and bank.unknown[2].all()
+    return loop
+
+
+def test_a_known_plan_leading_nowhere_changes_the_setting_instead(tmp_path) -> None:
+    """Issue 9 section 4: the setting offers on height 1 only action 1, which the learner knows
+    falls. The loop resets instead of making it; the new setting offers action 6, which stays
+    and grows the two-stack whose pairs are unknown, and that experiment is made."""
+    arm = SettingUntilReset([(0, 0), (1, 0)], [(0, 0), (1, 0), (1, 5)],
+                            stays=lambda s, a: s == 0 or a == 5)
+    loop = _known_up_to_height_one(arm, tmp_path)
+    loop.explorer.strategy.planner.solve()
+    strategy = loop.explorer.strategy
+    q = strategy.planner.q
+    assert q[2].max() > 0.5 and q[1, 5] > q[1, 0], "the plan values growing the two-stack"
+    assert not leads_towards_unknown(strategy, Choice(1, 0, PLAN, 1))
+    assert leads_towards_unknown(strategy, Choice(1, 5, PLAN, 2))
+    assert loop.run().startswith("done")
+    [record] = loop.log.records
+    assert arm.resets == 1 and (record.state, record.action, record.label) == (1, 6, 1)
+    assert record.mode == "plan" and record.dropped_before == {"no_route_to_unknown": 1}
+
+
+def test_a_setting_no_reset_improves_is_used_after_the_allowed_changes(tmp_path) -> None:
+    arm = SettingUntilReset([(0, 0), (1, 0)], [(0, 0), (1, 0)], stays=lambda s, a: s == 0)
+    loop = _known_up_to_height_one(arm, tmp_path, setting_changes=2)
+    assert loop.run().startswith("done")
+    [record] = loop.log.records
+    assert arm.resets == 2 and (record.state, record.action) == (1, 1)
+    assert record.dropped_before == {"no_route_to_unknown": 2}
+
+
+def test_with_nothing_unknown_anywhere_every_plan_is_worth_making(tmp_path) -> None:
+    loop, _ = make_loop(tmp_path, ScriptedArm(0), max_experiments=1)
+    bank, strategy = loop.explorer.bank, loop.explorer.strategy
+    for _ in range(40):
+        for s in range(4):
+            for a in range(6):
+                bank.update(s, a, -1)
+    assert not (bank.unknown[:4] & feasible_actions(3, 6, 1)[:4]).any()
+    strategy.planner.solve()
+    assert leads_towards_unknown(strategy, Choice(1, 0, PLAN, 0))

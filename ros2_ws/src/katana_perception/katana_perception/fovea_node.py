@@ -21,6 +21,7 @@ from katana_common.scene import SCENE_PARAMS
 from katana_interfaces.msg import BlockArray
 from katana_interfaces.srv import FindPlacement, ObserveSetting
 from katana_manipulation.core.reach import place_reach_table
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import ColorRGBA, Header
@@ -104,9 +105,15 @@ class FoveaNode(Node):
         self.create_subscription(BlockArray, "memory/blocks", self.on_blocks, STATE_QOS)
         self.create_subscription(CameraInfo, "camera/camera_info", self.on_camera_info,
                                  SENSOR_QOS)
-        self.create_subscription(Image, "camera/image_raw", self.on_image, SENSOR_QOS)
-        self.create_service(ObserveSetting, "fovea/observe", self.on_observe)
-        self.create_service(FindPlacement, "fovea/find_placement", self.on_find)
+        if self.mask_source == "image":  # read-only: no image traffic unless it is used
+            self.create_subscription(Image, "camera/image_raw", self.on_image, SENSOR_QOS)
+        # The services apart from the subscriptions, so that a burst of input callbacks cannot
+        # hold an experiment's observe back; one group, so the two services never interleave.
+        services = MutuallyExclusiveCallbackGroup()
+        self.create_service(ObserveSetting, "fovea/observe", self.on_observe,
+                            callback_group=services)
+        self.create_service(FindPlacement, "fovea/find_placement", self.on_find,
+                            callback_group=services)
 
     # ------------------------------------------------------------------ inputs
     def on_camera_info(self, msg: CameraInfo) -> None:
@@ -118,8 +125,6 @@ class FoveaNode(Node):
             self.get_logger().warn(f"camera_info rejected: {err}", throttle_duration_sec=5.0)
 
     def on_image(self, msg: Image) -> None:
-        if self.mask_source != "image":
-            return
         try:
             self.rgb = image_to_rgb(msg)
         except ValueError as err:

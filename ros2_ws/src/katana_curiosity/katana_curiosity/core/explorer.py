@@ -9,6 +9,7 @@ while it exploits it) and reports what happened. A new strategy is one small cla
 from __future__ import annotations
 
 import random
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -42,6 +43,13 @@ class Step:
     chi_before: float
     weights_before: np.ndarray | None = None  # only when the explorer records weights
     record: object = None  # the environment's record of the execution (Outcome.record)
+
+
+class NoRouteToUnknown(PlacementUnavailable):
+    """A planned choice not worth making: its outcome is known and it leads to no unknown pair,
+    so the setting should change instead (the robot loop resets it)."""
+
+    reason = "no_route_to_unknown"
 
 
 def first_unknown(bank: PredictorBank, setting: Setting | ShuffledSetting) -> Choice | None:
@@ -207,10 +215,14 @@ class Explorer:
         strategy: Strategy,
         max_alternatives: int = 20,
         record_weights: bool = False,
+        worth_making: Callable[[Strategy, Choice], bool] | None = None,
     ) -> None:
+        """worth_making: asked before a planned choice is executed; False raises
+        NoRouteToUnknown instead (the robot's "no experiment wasted"; None: always make it)."""
         self.world, self.bank, self.strategy = world, bank, strategy
         self.max_alternatives = max_alternatives
         self.record_weights = record_weights
+        self.worth_making = worth_making
         self.steps = 0
 
     def step(self) -> Step:
@@ -218,6 +230,10 @@ class Explorer:
         if len(setting) == 0:
             raise PlacementUnavailable("the setting offers no instance")
         choice = self.strategy.choose(setting, self.steps)
+        if (choice.mode == PLAN and self.worth_making is not None
+                and not self.worth_making(self.strategy, choice)):
+            raise NoRouteToUnknown(f"the planned placement on height {choice.state}, action "
+                                   f"{choice.action + 1} is known and leads to no unknown pair")
         (label, record), choice = self._execute(setting, choice)
         s, a = choice.state, choice.action
         margin, chi = float(self.bank.margin[s, a]), float(self.bank.chi[s, a])

@@ -7,6 +7,10 @@ Policy (the paper's robot had a person for this; here it is explicit):
   the reason is counted in the next record's `dropped_before`.
 - After `failures_before_reset` drops in a row, or when a block lies out of reach, or when
   `stuck_reset` experiments in a row offered only the table, the environment is reset.
+- No experiment wasted: a planned placement whose outcome the learner already knows is made
+  only if it leads towards an unknown pair (`leads_towards_unknown`); otherwise the setting
+  is changed (reset) instead, at most `setting_changes` times in a row before the plan is
+  followed anyway (a setting that no reset improves must not stop the run).
 - Every wait watches `stop`, so `stop.set()` ends the loop at once.
 Choices depend only on the seed and on what the environment reports, never on wall time.
 """
@@ -23,7 +27,8 @@ from typing import Any, Protocol
 import numpy as np
 
 from .environment import Environment, PlacementUnavailable
-from .explorer import MODE_NAMES, Explorer, Step
+from .explorer import MODE_NAMES, Choice, Explorer, NoRouteToUnknown, Step, Strategy
+from .planner import clip_margin
 from .predictors import PredictorBank, QueryRule, one_hot_with_bias
 from .run_record import ExperienceLog, ExperimentRecord, InstanceRecord
 
@@ -49,6 +54,28 @@ def set_query_rule(bank: PredictorBank, alpha: float, theta: float) -> None:
     bank.rule = QueryRule(alpha, theta)
     for height in bank.heights:
         bank._refresh(int(height))  # the bank's own recomputation of chi and the flags
+
+
+#: a successor height whose best value is at most this has no phantom reward within reach
+NO_VALUE = 1e-6
+
+
+def leads_towards_unknown(strategy: Strategy, choice: Choice) -> bool:
+    """Whether a planned placement is worth making: its pair is still unknown, or the learner
+    predicts it stays (margin > 0) and the stack it grows has an unknown pair within the plan's
+    reach (V(s+1) > 0). When nothing is unknown anywhere, no setting can do better: True."""
+    planner = getattr(strategy, "planner", None)
+    if planner is None:
+        return True
+    bank, s, a = strategy.bank, choice.state, choice.action
+    unknown = bank.unknown[: planner.top]
+    if planner.feasible is not None:
+        unknown = unknown & planner.feasible[: planner.top]
+    if not unknown.any() or bank.unknown[s, a]:
+        return True
+    up = s + 1
+    return bool(clip_margin(bank.margin[s, a]) > 0.0 and up < planner.top
+                and planner.q[up].max() > NO_VALUE)
 
 
 class ExperimentAborted(RuntimeError):
@@ -137,6 +164,7 @@ class LoopPolicy:
     stuck_reset: int = 3  # experiments in a row offering only the table (0: never)
     backoff_s: float = 0.2  # pause after a drop, times the drops in a row
     max_backoff_s: float = 2.0
+    setting_changes: int = 3  # pointless plans answered by a reset, in a row (0: never)
 
 
 class RobotLoop:
@@ -162,7 +190,15 @@ class RobotLoop:
         self.dropped_total: Counter[str] = Counter()  # this session
         self.resets = 0
         self._table_only = 0
+        self._setting_changes = 0  # in a row, since the last experiment
         self.done_this_session = 0
+        if policy.setting_changes:
+            explorer.worth_making = self._worth_making
+
+    def _worth_making(self, strategy: Strategy, choice: Choice) -> bool:
+        if self._setting_changes >= self.policy.setting_changes:
+            return True  # resets did not help: follow the plan
+        return leads_towards_unknown(strategy, choice)
 
     @property
     def finished_all(self) -> bool:
@@ -183,6 +219,12 @@ class RobotLoop:
             try:
                 self.run_one()
                 failures = 0
+            except NoRouteToUnknown as exc:
+                self._setting_changes += 1
+                self.dropped[exc.reason] += 1
+                self.dropped_total[exc.reason] += 1
+                self.logger.info(f"changing the setting: {exc}")
+                self.maybe_reset(force=True, why="the plan leads to no unknown pair")
             except (PlacementUnavailable, ExperimentAborted, TimeoutError) as exc:
                 failures += 1
                 reason = drop_reason(exc)
@@ -208,6 +250,7 @@ class RobotLoop:
             record = self.make_record(step, execution)
             self.log.append(record)  # OSError ends the loop: nothing may go unrecorded
         self.done_this_session += 1
+        self._setting_changes = 0
         self.dropped.clear()
         self.environment.mark_experiment_done()
         self.on_experiment(record, step)
