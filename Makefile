@@ -9,9 +9,14 @@ JOBS ?= 2
 setup:
 	@bash scripts/setup.sh
 
+# Two pytest-xdist workers: the hardware loop test (about 7 min of real-time arm motion against
+# the emulator) runs first, beside the rest. Each worker's node processes get their own ROS
+# domain (katana_common.testing); in-process graphs are isolated by discovery OFF.
+TEST_WORKERS ?= 2
+
 test: setup
 	@$(ENV) ruff check .
-	@$(ENV) ROS_AUTOMATIC_DISCOVERY_RANGE=OFF python -m pytest
+	@$(ENV) ROS_AUTOMATIC_DISCOVERY_RANGE=OFF python -m pytest -n $(TEST_WORKERS) --dist worksteal
 
 lint: setup
 	@$(ENV) ruff check .

@@ -9,3 +9,10 @@ from hypothesis import settings
 settings.register_profile("ci", derandomize=True, deadline=None, print_blob=True)
 if os.environ.get("CI"):
     settings.load_profile("ci")
+
+#: started first, so that under `-n 2` its real-time arm motions overlap the rest of the suite
+LONGEST_FIRST = ("test_katana_run_hardware_runs_the_curiosity_loop_against_the_emulator",)
+
+
+def pytest_collection_modifyitems(config, items):
+    items.sort(key=lambda item: item.name not in LONGEST_FIRST)  # stable: the rest keep order

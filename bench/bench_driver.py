@@ -19,6 +19,8 @@ import os
 import statistics
 import time
 
+from katana_common.testing import private_ros_env
+
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
 
 
@@ -105,8 +107,7 @@ def _shutdown_times() -> dict:
 
     from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
 
-    env = dict(os.environ, ROS_DOMAIN_ID=str(120 + os.getpid() % 100),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+    env = private_ros_env(PYTHONUNBUFFERED="1")
     goal = ("import rclpy\nfrom katana_driver.testing import POSE_B, trajectory\n"
             "from katana_interfaces.action import FollowJointTrajectory as F\n"
             "from rclpy.action import ActionClient\nrclpy.init()\n"

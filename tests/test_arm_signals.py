@@ -4,7 +4,6 @@ the executor works under use_sim_time with the sim's /clock (issue 10 §2)."""
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -14,6 +13,7 @@ import pytest
 import rclpy
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Pose
+from katana_common.testing import private_domain_id
 from katana_description import models as m
 from katana_interfaces.action import FollowJointTrajectory, PickAndPlace
 from rcl_interfaces.srv import GetParameters
@@ -29,7 +29,7 @@ NODE_LIMIT_S = 2.0  # issue 10 §2
 
 @pytest.fixture
 def probe(monkeypatch):
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(120 + os.getpid() % 100))
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(private_domain_id()))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     ctx = Context()
     rclpy.init(context=ctx)

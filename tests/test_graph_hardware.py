@@ -5,7 +5,6 @@ port and the substitute camera) runs the curiosity loop."""
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -13,6 +12,7 @@ import time
 
 import pytest
 from katana_bringup.run import build_nodes, default_params_files, load_params
+from katana_common.testing import private_ros_env
 from katana_description import models
 from katana_driver.core.encoders import EncoderModel
 from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
@@ -101,8 +101,7 @@ def test_katana_run_hardware_runs_the_curiosity_loop_against_the_emulator(emulat
         "katana_driver_node:\n  ros__parameters:\n"
         f"    host: \"{host}\"\n    port: {port}\n"
         "camera_node:\n  ros__parameters:\n    device: \"substitute\"\n")
-    env = dict(os.environ, ROS_DOMAIN_ID=str(120 + os.getpid() % 100),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env = private_ros_env()
     log = tmp_path / "run" / "katana-run.log"
     log.parent.mkdir()
     with open(log, "w") as out:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 
-import pytest
 from katana_bringup.run import build_nodes, default_params_files, load_params
 from katana_common.conversions import to_seconds
 from katana_common.qos import CLOCK_QOS

@@ -5,7 +5,6 @@ readable."""
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -18,6 +17,7 @@ from katana_bringup.recorder_node import TOPICS, RecorderNode
 from katana_bringup.recording import message_definition, read_recording
 from katana_bringup.testing import InProcessGraph
 from katana_common.qos import EVENT_QOS, SENSOR_QOS, STATE_QOS
+from katana_common.testing import private_ros_env
 from katana_interfaces.msg import Block, BlockArray, Experience, LearnerState
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -89,8 +89,7 @@ def test_a_short_recording_reads_back_with_topics_types_and_counts(tmp_path):
 
 
 def _env() -> dict:
-    return dict(os.environ, ROS_DOMAIN_ID=str(120 + os.getpid() % 100),
-                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    return private_ros_env()
 
 
 @pytest.mark.timeout(120)

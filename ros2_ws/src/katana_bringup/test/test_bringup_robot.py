@@ -4,13 +4,13 @@ two-seed `paper` run writing every file. Each test keeps to a few placements."""
 from __future__ import annotations
 
 import json
-import os
 
 import numpy as np
 import pytest
 from katana_bringup import robot
 from katana_bringup.run import build_nodes
 from katana_bringup.testing import InProcessGraph
+from katana_common.testing import private_domain_id
 from katana_curiosity.core.robot_loop import robot_bank
 from katana_curiosity.core.robot_truth import TruthTable
 from katana_curiosity.core.run_record import CHECKPOINT_NAME, save_checkpoint
@@ -135,7 +135,7 @@ def test_paper_with_two_seeds_writes_every_file(tmp_path):
                     truth.record(h, a, 1 if (h == 0 or k < a - 2) else -1)
     truth.save(tmp_path / "truth.json")
     out = tmp_path / "paper"
-    domain = 120 + os.getpid() % 100
+    domain = private_domain_id()
     code = robot.main(["paper", "--seeds", "2", "--experiments", "3", "--methods", "q1",
                        "--jobs", "2", "--out", str(out), "--truth", str(tmp_path / "truth.json"),
                        "--domain-base", str(domain)])

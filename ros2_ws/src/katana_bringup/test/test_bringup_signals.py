@@ -4,7 +4,6 @@ starts them; the perception node while it is segmenting a stream of camera frame
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -14,6 +13,7 @@ import numpy as np
 import pytest
 import rclpy
 from katana_common.qos import SENSOR_QOS
+from katana_common.testing import private_domain_id
 from katana_perception.conversions import rgb_to_image
 from katana_perception.core.calibration import Calibration
 from katana_perception.core.synthetic import Renderer, stack_block
@@ -31,7 +31,7 @@ RUN_LIMIT_S = 3.0  # and katana-run within 3 s
 @pytest.fixture
 def probe(monkeypatch):
     """A node in the test process, on a domain of this test process only."""
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(120 + os.getpid() % 100))
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(private_domain_id()))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     ctx = Context()
     rclpy.init(context=ctx)

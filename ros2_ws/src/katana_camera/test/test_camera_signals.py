@@ -2,21 +2,20 @@
 How fast (issue 10: within 2 s) is measured by bench/bench_driver.py (shutdown_s); the bound
 here only tells a hang from a slow machine."""
 
-import os
 import signal
 import subprocess
 import sys
 import time
 
 import pytest
+from katana_common.testing import private_ros_env
 
 pytestmark = pytest.mark.timeout(60)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_signal_ends_the_camera_node_cleanly(sig, tmp_path):
-    env = dict(os.environ, ROS_DOMAIN_ID=str(120 + os.getpid() % 100),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+    env = private_ros_env(PYTHONUNBUFFERED="1")
     log_path = tmp_path / "camera.log"
     with open(log_path, "w") as log_file:
         proc = subprocess.Popen(

@@ -21,6 +21,7 @@ from katana_common.futures import Stopped, wait_for_future
 from katana_common.node_runner import EXIT_INVALID_CONFIGURATION, EXIT_OK
 from katana_common.param_spec import Param
 from katana_common.params import ParameterError, declare_parameters
+from katana_common.testing import private_ros_env
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -209,8 +210,7 @@ NODE_SCRIPT = textwrap.dedent(
 
 def _start(*ros_args):
     # a domain of this test process alone, so parallel runs on one machine cannot meet
-    domain = str(120 + os.getpid() % 100)
-    env = dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env = private_ros_env()
     return subprocess.Popen(
         [sys.executable, "-c", NODE_SCRIPT, "--ros-args", *ros_args],
         stdout=subprocess.PIPE,

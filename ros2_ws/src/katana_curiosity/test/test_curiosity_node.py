@@ -18,6 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from katana_common.params import ParameterError
 from katana_common.qos import STATE_QOS
+from katana_common.testing import private_domain_id
 from katana_curiosity.core.block_choice import PickReach
 from katana_curiosity.core.robot_loop import robot_bank
 from katana_curiosity.core.run_record import CHECKPOINT_NAME, load_checkpoint, replay
@@ -562,7 +563,7 @@ def test_pick_reach_answers_every_block(bands, x, y, level) -> None:
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_ends_the_node_process_mid_experiment(tmp_path, sig) -> None:
-    domain = 120 + (os.getpid() + sig) % 100  # this test process alone
+    domain = private_domain_id()  # this test process alone
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     saved = {k: os.environ.get(k) for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE",)}
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # read when the context starts

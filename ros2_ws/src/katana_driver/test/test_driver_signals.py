@@ -3,7 +3,6 @@ cleanly, with exit code 0 and no traceback: idle, and in the middle of a traject
 which the arm holds. How fast (issue 10: within 2 s) is measured by bench/bench_driver.py
 (shutdown_s); here a generous bound only tells a hang from a slow machine."""
 
-import os
 import signal
 import subprocess
 import sys
@@ -11,17 +10,14 @@ import threading
 import time
 
 import pytest
+from katana_common.testing import private_ros_env
 
 pytestmark = pytest.mark.timeout(60)
 HANG_S = 15.0  # no timed assert: a node that has not ended by then hangs
 
 
 def _env():
-    env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(120 + os.getpid() % 100)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env["PYTHONUNBUFFERED"] = "1"
-    return env
+    return private_ros_env(PYTHONUNBUFFERED="1")
 
 
 class NodeProcess:
