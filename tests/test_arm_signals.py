@@ -10,17 +10,13 @@ import sys
 import time
 
 import pytest
-import rclpy
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Pose
-from katana_common.testing import private_domain_id
+from katana_common.testing import probe_node, use_private_domain
 from katana_description import models as m
 from katana_interfaces.action import FollowJointTrajectory, PickAndPlace
 from rcl_interfaces.srv import GetParameters
 from rclpy.action import ActionClient
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 pytestmark = pytest.mark.timeout(300)
@@ -29,22 +25,14 @@ NODE_LIMIT_S = 2.0  # issue 10 §2
 
 @pytest.fixture
 def probe(monkeypatch):
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(private_domain_id()))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    ctx = Context()
-    rclpy.init(context=ctx)
-    node = Node("arm_signal_probe", context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
+    use_private_domain(monkeypatch)
     procs: list[subprocess.Popen] = []
-    yield node, ex, procs
-    for proc in procs:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    ex.shutdown()
-    node.destroy_node()
-    rclpy.try_shutdown(context=ctx)
+    with probe_node("arm_signal_probe") as (node, ex):
+        yield node, ex, procs
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
 
 
 def _start(procs, module: str, *params: str) -> subprocess.Popen:

@@ -11,14 +11,11 @@ import time
 
 import numpy as np
 import pytest
-import rclpy
 from katana_common.qos import SENSOR_QOS
-from katana_common.testing import private_domain_id
+from katana_common.testing import probe_node, use_private_domain
 from katana_perception.conversions import rgb_to_image
 from katana_perception.core.calibration import Calibration
 from katana_perception.core.synthetic import Renderer, stack_block
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
@@ -31,17 +28,9 @@ RUN_LIMIT_S = 3.0  # and katana-run within 3 s
 @pytest.fixture
 def probe(monkeypatch):
     """A node in the test process, on a domain of this test process only."""
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(private_domain_id()))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    ctx = Context()
-    rclpy.init(context=ctx)
-    node = Node("signal_test_probe", context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    yield node, ex
-    ex.shutdown()
-    node.destroy_node()
-    rclpy.try_shutdown(context=ctx)
+    use_private_domain(monkeypatch)
+    with probe_node("signal_test_probe") as (node, ex):
+        yield node, ex
 
 
 def _camera_msgs():

@@ -20,7 +20,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
-from .conversions import blocks_to_msg, calibration_from_camera_info, seen_from_msg, yaw_of
+from .conversions import blocks_to_msg, node_calibration, seen_from_msg, yaw_of
 from .core.memory import BlockMemory, MemoryParams
 from .specs import EXTRINSICS_FILE, check_files_and_colors
 
@@ -66,12 +66,8 @@ class BlockMemoryNode(Node):
             setattr(mp, name, self.params[name])
 
     def on_camera_info(self, msg: CameraInfo) -> None:
-        try:
-            calib = calibration_from_camera_info(msg, self.params["camera_position"],
-                                                 self.params["camera_rpy"],
-                                                 self.params["extrinsics_file"])
-        except ValueError as err:
-            self.get_logger().warn(f"camera_info rejected: {err}", throttle_duration_sec=5.0)
+        calib = node_calibration(self, msg)
+        if calib is None:
             return
         if self.memory is None:
             self.memory = BlockMemory(calib, self.memory_params, self.block_size)

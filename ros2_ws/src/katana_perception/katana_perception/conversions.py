@@ -82,6 +82,19 @@ def calibration_from_camera_info(
     return Calibration.from_camera_rpy(K, position, rpy, msg.width, msg.height, D)
 
 
+
+def node_calibration(node, msg: CameraInfo) -> Calibration | None:
+    """The calibration of a CameraInfo with the node's camera pose parameters (camera_position,
+    camera_rpy, extrinsics_file), or None after a throttled warning saying why it was refused."""
+    try:
+        return calibration_from_camera_info(msg, node.params["camera_position"],
+                                            node.params["camera_rpy"],
+                                            node.params["extrinsics_file"])
+    except ValueError as err:
+        node.get_logger().warn(f"camera_info rejected: {err}", throttle_duration_sec=5.0)
+        return None
+
+
 def yaw_quaternion(pose: Pose, yaw: float) -> None:
     pose.orientation.x = 0.0
     pose.orientation.y = 0.0

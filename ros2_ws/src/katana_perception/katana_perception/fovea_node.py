@@ -29,9 +29,9 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from .conversions import (
     blocks_from_msg,
-    calibration_from_camera_info,
     image_to_rgb,
     instance_to_msg,
+    node_calibration,
 )
 from .core.colors import parse_color_table
 from .core.fovea import N_ACTIONS, FoveaParams, FoveaScene, Instance, NotFound
@@ -117,12 +117,9 @@ class FoveaNode(Node):
 
     # ------------------------------------------------------------------ inputs
     def on_camera_info(self, msg: CameraInfo) -> None:
-        try:
-            self.calibration = calibration_from_camera_info(
-                msg, self.params["camera_position"], self.params["camera_rpy"],
-                self.params["extrinsics_file"])
-        except ValueError as err:
-            self.get_logger().warn(f"camera_info rejected: {err}", throttle_duration_sec=5.0)
+        calib = node_calibration(self, msg)
+        if calib is not None:
+            self.calibration = calib
 
     def on_image(self, msg: Image) -> None:
         try:

@@ -30,9 +30,9 @@ from std_msgs.msg import Header
 
 from .conversions import (
     blocks_from_msg,
-    calibration_from_camera_info,
     detection_to_msg,
     image_to_rgb,
+    node_calibration,
     placement_from_msg,
     rgb_to_image,
 )
@@ -113,12 +113,8 @@ class PerceptionNode(Node):
 
     # ------------------------------------------------------------------ inputs
     def on_camera_info(self, msg: CameraInfo) -> None:
-        try:
-            calib = calibration_from_camera_info(msg, self.params["camera_position"],
-                                                 self.params["camera_rpy"],
-                                                 self.params["extrinsics_file"])
-        except ValueError as err:
-            self.get_logger().warn(f"camera_info rejected: {err}", throttle_duration_sec=5.0)
+        calib = node_calibration(self, msg)
+        if calib is None:
             return
         if self.calibration is None:
             self.get_logger().info(f"calibrated: {calib.width}x{calib.height}, "

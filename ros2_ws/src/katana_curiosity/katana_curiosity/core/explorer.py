@@ -16,7 +16,7 @@ from typing import ClassVar
 import numpy as np
 
 from .environment import Environment, Outcome, PlacementUnavailable, Setting, ShuffledSetting
-from .planner import Planner
+from .planner import Planner, RewardTable
 from .predictors import PredictorBank
 
 QUERY, PLAN, RANDOM = 0, 1, 2
@@ -81,7 +81,8 @@ class Strategy:
 
 
 class PlanningStrategy(Strategy):
-    """Shared by the strategies that plan on the phantom-reward MDP."""
+    """Shared by the strategies that plan on the phantom-reward MDP. A subclass keeps its own
+    state in `setup` and may plan on its own reward (`phantom_reward`), with no constructor."""
 
     reward: ClassVar[str] = "query"
 
@@ -94,7 +95,15 @@ class PlanningStrategy(Strategy):
         feasible: np.ndarray | None = None,
     ) -> None:
         super().__init__(bank, top, gamma, seed)
-        self.planner = Planner(bank, top, gamma, reward=self.reward, feasible=feasible)
+        self.setup()
+        self.planner = Planner(bank, top, gamma, reward=self.phantom_reward(), feasible=feasible)
+
+    def setup(self) -> None:
+        """The strategy's own state, made before its planner (bank, top, gamma are set)."""
+
+    def phantom_reward(self) -> str | RewardTable:
+        """What the planner rewards: a kind of planner.REWARD_KINDS or a RewardTable."""
+        return self.reward
 
     def planned(self, setting: Setting | ShuffledSetting, q: np.ndarray | None = None) -> Choice:
         """(s*, a*) constrained by availability (section 2.2): the available state of highest
@@ -140,15 +149,7 @@ class Q10(Q1):
     name = "q10"
     period: ClassVar[int] = 10
 
-    def __init__(
-        self,
-        bank: PredictorBank,
-        top: int,
-        gamma: float = 0.95,
-        seed: int = 0,
-        feasible: np.ndarray | None = None,
-    ) -> None:
-        super().__init__(bank, top, gamma, seed, feasible)
+    def setup(self) -> None:
         self.solved_at: int | None = None
 
     def choose(self, setting: Setting | ShuffledSetting, step: int) -> Choice:

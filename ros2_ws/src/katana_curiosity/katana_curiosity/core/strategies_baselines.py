@@ -21,8 +21,7 @@ import numpy as np
 
 from .environment import Setting, ShuffledSetting
 from .explorer import QUERY, RANDOM, STRATEGIES, Choice, PlanningStrategy
-from .planner import Planner, clip_margin
-from .predictors import PredictorBank
+from .planner import RewardTable, clip_margin
 
 
 class LearningProgress(PlanningStrategy):
@@ -37,19 +36,14 @@ class LearningProgress(PlanningStrategy):
     name = "lp"
     window: ClassVar[int] = 5
 
-    def __init__(
-        self,
-        bank: PredictorBank,
-        top: int,
-        gamma: float = 0.95,
-        seed: int = 0,
-        feasible: np.ndarray | None = None,
-    ) -> None:
-        super().__init__(bank, top, gamma, seed, feasible)
+    def setup(self) -> None:
+        bank = self.bank
         self.errors = np.zeros((bank.n_states, bank.n_actions, 2 * self.window))
         self.counts = np.zeros((bank.n_states, bank.n_actions), dtype=np.int64)
         bank.listeners.append(self._learned)
-        self.planner = Planner(bank, top, gamma, reward=self.progress, feasible=feasible)
+
+    def phantom_reward(self) -> RewardTable:
+        return self.progress
 
     def _learned(self, state: int, action: int, label: float, margin: float) -> None:
         error = abs(label - float(clip_margin(margin))) / 2.0
@@ -92,24 +86,19 @@ class RMax(PlanningStrategy):
     name = "rmax"
     tries: ClassVar[int] = 5
 
-    def __init__(
-        self,
-        bank: PredictorBank,
-        top: int,
-        gamma: float = 0.95,
-        seed: int = 0,
-        feasible: np.ndarray | None = None,
-    ) -> None:
-        super().__init__(bank, top, gamma, seed, feasible)
+    def setup(self) -> None:
         if self.tries < 1:
             raise ValueError(f"tries must be >= 1, got {self.tries}")
+        bank = self.bank
         self.counts = np.zeros((bank.n_states, bank.n_actions), dtype=np.int64)
         learned = bank.slot >= 0
-        learned[top:] = False
+        learned[self.top:] = False
         self.unknown = np.zeros((bank.n_states, bank.n_actions), dtype=bool)
         self.unknown[learned] = True
         bank.listeners.append(self._learned)
-        self.planner = Planner(bank, top, gamma, reward=self.optimism, feasible=feasible)
+
+    def phantom_reward(self) -> RewardTable:
+        return self.optimism
 
     def _learned(self, state: int, action: int, label: float, margin: float) -> None:
         self.counts[state, action] += 1
