@@ -107,12 +107,16 @@ def test_follows_a_trajectory_within_tolerance(make_emulator, worker_for):
             state = w.worker.wait_state(after=last, timeout=1.0)
             assert state is not None
             last = state.stamp
-            desired = plan.desired_at(state.stamp - t0)
+            # the controller's schedule, as the driver judges it (motion._judge): a segment
+            # that went in late (a loaded machine) shifts everything after it by stream.lag_s
+            desired = plan.desired_at(max(0.0, state.stamp - t0 - stream.lag_s))
             worst = max(
                 worst, max(abs(a - d) for a, d in zip(state.positions[:5], desired, strict=True))
             )
-            if state.stamp - t0 > plan.duration_s and state.status_stamp > t0 + plan.duration_s:
-                done = all(s == p.STATUS_SPLINE_DONE for s in state.status[:5])
+            end = t0 + stream.lag_s + plan.duration_s
+            if state.status_stamp > end and all(s == p.STATUS_SPLINE_DONE
+                                                for s in state.status[:5]):
+                done = True
                 break
     assert done
     assert worst < 0.05  # rad: timing offsets of a poll, at speeds under 1 rad/s
