@@ -67,7 +67,7 @@ def _instrument(meter: Meter) -> None:
     from katana_sim.core.physics import PhysicsSim
 
     meter.wrap(PhysicsSim, "step", "physics")
-    meter.wrap(PhysicsSim, "render", "render")
+    meter.wrap(PhysicsSim, "_raw_render", "render")  # images drawn (a still scene's are not)
     meter.wrap(Segmenter, "segment", "segment")
     meter.wrap(Judge, "snapshot", "judge")
     meter.wrap(Judge, "judge", "judge")
@@ -82,6 +82,9 @@ def _median(values: list[float]) -> float | None:
 
 def run() -> dict:
     from katana_bringup import demo
+    from katana_bringup.run import default_params_files, load_params
+
+    camera_rate_hz = load_params(default_params_files("sim"))["sim_node"]["camera_rate"]
 
     meter = Meter()
     _instrument(meter)
@@ -105,6 +108,7 @@ def run() -> dict:
     # the floor of each window (previous experiment logged, this one logged]
     floors: list[dict[str, float]] = []
     renders: list[int] = []
+    segments: list[int] = []
     for a, b in zip(times, times[1:], strict=False):
         sums: dict[str, float] = defaultdict(float)
         for end, seconds, kind in meter.events:
@@ -112,13 +116,16 @@ def run() -> dict:
                 sums[kind] += seconds
         floors.append(dict(sums))
         renders.append(sum(1 for end, _, kind in meter.events if kind == "render" and a < end <= b))
+        segments.append(sum(1 for end, _, kind in meter.events
+                            if kind == "segment" and a < end <= b))
     floor_totals = [sum(f.values()) for f in floors]
     # the same with only the two images an experiment needs (after parking, for the judge;
     # after the experience, for the memory): the cost of the images nobody needed
     two_images = [
         f.get("physics", 0.0) + f.get("fovea", 0.0) + f.get("judge", 0.0)
-        + (f.get("render", 0.0) + f.get("segment", 0.0)) * min(1.0, 2.0 / max(n, 1))
-        for f, n in zip(floors, renders, strict=True)]
+        + f.get("render", 0.0) * min(1.0, 2.0 / max(n, 1))
+        + f.get("segment", 0.0) * min(1.0, 2.0 / max(k, 1))
+        for f, n, k in zip(floors, renders, segments, strict=True)]
     kinds = ("physics", "render", "segment", "judge", "fovea")
 
     def stage(name: str) -> list[float]:
@@ -140,7 +147,8 @@ def run() -> dict:
         "floor_median_s": {k: _median([f.get(k, 0.0) for f in floors]) for k in kinds},
         "overhead_ratio": round(s_per / floor, 2) if s_per and floor else None,
         "renders_per_experiment": _median([float(n) for n in renders]),
-        "camera_rate_hz": demo.HEADLESS_CAMERA_RATE,
+        "segmentations_per_experiment": _median([float(n) for n in segments]),
+        "camera_rate_hz": camera_rate_hz,
         "dropped_experiments": dropped,
         "highest_stack": summary["highest_stack"],
         "heights_explored": summary["heights_explored"],

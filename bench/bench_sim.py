@@ -27,10 +27,10 @@ def bench_render(frames: int = 30) -> float:
 
     world = PhysicsSim(SimConfig(seed=1))
     try:
-        world.render()  # warm-up
+        world.render(fresh=True)  # warm-up
         t0 = time.perf_counter()
         for _ in range(frames):
-            world.render()
+            world.render(fresh=True)  # the renderer, not its cache
         return (time.perf_counter() - t0) / frames * 1000.0
     finally:
         world.close()

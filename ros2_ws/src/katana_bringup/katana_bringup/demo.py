@@ -41,7 +41,6 @@ from .run import (
 
 FRAMES_FIRST = 6  # frames of the first experiments, then one every FRAMES_EVERY
 FRAMES_EVERY = 25
-HEADLESS_CAMERA_RATE = 5.0  # Hz of sim time (and at most of wall time)
 
 
 def draw_placement(rgb: np.ndarray, u: float, v: float, bits, text: str, fovea_px: int = 40,
@@ -163,11 +162,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.strategy:
         curiosity["strategy"] = args.strategy
     if not args.params:
-        # Headless: nobody looks at the debug image, and fewer camera frames leave the shared
-        # process's CPU to the physics (the judge still waits for frames taken after parking).
+        # Headless: nobody looks at the debug image (its drawing would take the shared
+        # process's CPU from the physics).
         params.setdefault("perception_node", {})["publish_debug_image"] = False
-        if args.backend == "sim":
-            params.setdefault("sim_node", {})["camera_rate"] = HEADLESS_CAMERA_RATE
     if args.backend == "sim":
         params.setdefault("sim_node", {}).update(seed=args.seed,
                                                  real_time_factor=args.real_time_factor)

@@ -66,7 +66,7 @@ def graph_params(seed: int, ground_truth_rate: float = 10.0) -> dict:
     """The package's graph and sim parameters, headless and on the fast sim."""
     params = load_params(default_params_files("sim"))
     params.setdefault("perception_node", {})["publish_debug_image"] = False
-    params.setdefault("sim_node", {}).update(seed=seed, real_time_factor=0.0, camera_rate=5.0,
+    params.setdefault("sim_node", {}).update(seed=seed, real_time_factor=0.0,
                                              ground_truth_rate=ground_truth_rate)
     return params
 

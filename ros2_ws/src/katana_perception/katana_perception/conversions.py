@@ -85,14 +85,25 @@ def calibration_from_camera_info(
 
 def node_calibration(node, msg: CameraInfo) -> Calibration | None:
     """The calibration of a CameraInfo with the node's camera pose parameters (camera_position,
-    camera_rpy, extrinsics_file), or None after a throttled warning saying why it was refused."""
+    camera_rpy, extrinsics_file), or None after a throttled warning saying why it was refused.
+
+    A camera sends the same camera_info with every image: while it and the parameters stay
+    the same, the node gets the same Calibration object back, so that what it computed with
+    the calibration (the perception node's segmented frame) stays valid."""
+    pose = (tuple(node.params["camera_position"]), tuple(node.params["camera_rpy"]),
+            node.params["extrinsics_file"])
+    key = (msg.width, msg.height, msg.distortion_model, tuple(msg.k), tuple(msg.d),
+           tuple(msg.r), tuple(msg.p), pose)
+    cached = getattr(node, "_calibration_from", None)
+    if cached is not None and cached[0] == key:
+        return cached[1]
     try:
-        return calibration_from_camera_info(msg, node.params["camera_position"],
-                                            node.params["camera_rpy"],
-                                            node.params["extrinsics_file"])
+        calib = calibration_from_camera_info(msg, *pose)
     except ValueError as err:
         node.get_logger().warn(f"camera_info rejected: {err}", throttle_duration_sec=5.0)
         return None
+    node._calibration_from = (key, calib)
+    return calib
 
 
 def yaw_quaternion(pose: Pose, yaw: float) -> None:

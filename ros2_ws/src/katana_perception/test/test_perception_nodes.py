@@ -418,3 +418,40 @@ def test_live_parameters_apply_and_read_only_ones_are_refused(ros):
         ro = set_param("fovea_node", name, value)
         assert not ro.successful, name
     assert fovea.mask_source == "memory" and fovea.fovea.max_state == 3
+
+
+def test_a_repeated_frame_gives_the_same_blocks_without_segmenting_it_again(ros):
+    node = ros.make(PerceptionNode)
+    calls = []
+    segment = node.segmenter.segment
+    node.segmenter.segment = lambda *a: calls.append(a[2].copy()) or segment(*a)
+    dets = ros.collect(BlockArray, "perception/detections")
+    memory_pub = ros.helper.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
+    assert ros.spin_until(lambda: ros.image_pub.get_subscription_count() > 0)
+    rgb, _ = ros.renderer.render(SCATTER, seed=1)
+
+    def frame(sec: int) -> None:  # the same pixels under a new stamp; sensor QoS may drop one
+        msg = rgb_to_image(rgb, Header(frame_id="camera_optical_frame"))
+        msg.header.stamp.sec = sec
+        for _ in range(50):
+            ros.camera_info()
+            ros.image_pub.publish(msg)
+            if ros.spin_until(lambda: dets and dets[-1].header.stamp.sec == sec, timeout=0.3):
+                return
+        raise AssertionError(f"no detections for the frame stamped {sec}")
+
+    frame(1)
+    frame(2)
+    assert len(calls) == 1  # the second frame was the first one again
+    assert [b.id for b in dets[-1].blocks] == [b.id for b in dets[0].blocks]
+    assert [b.pose for b in dets[-1].blocks] == [b.pose for b in dets[0].blocks]
+    # the memory says red sits on a block now: the same pixels mean something else
+    memory = BlockArray(header=Header(frame_id="world"), blocks=[
+        b for b in dets[-1].blocks])
+    memory.blocks[0].level = 2
+    memory_pub.publish(memory)
+    assert ros.spin_until(lambda: node.levels.get(memory.blocks[0].id) == 2)
+    frame(3)
+    assert len(calls) == 2 and calls[-1][memory.blocks[0].id] == 2
+    frame(4)
+    assert len(calls) == 2

@@ -34,6 +34,7 @@ from katana_sim.sim_params import PARAMS, cross_check, sim_config
 
 FAST_IMAGE_IDLE_S = 0.05  # fast mode: render once the arm has been idle this long (wall)
 FEEDBACK_PERIOD_S = 0.2  # simulated seconds between action feedback messages
+FAST_FEEDBACK_WALL_S = 0.1  # fast mode: and at most one per this many wall seconds (as outputs)
 
 
 class SimNode(Node):
@@ -50,6 +51,7 @@ class SimNode(Node):
         self.lock = threading.RLock()
         self.stopping = threading.Event()
         self._stepped = threading.Condition()
+        self._lockstepping = 0  # fast mode: motions being stepped by their callbacks (under lock)
         self.outputs = SimOutputs(self, self.world, self.stopping)
         self.params.on_change(self._on_params)
         group = ReentrantCallbackGroup()
@@ -82,8 +84,12 @@ class SimNode(Node):
         mine, idle_since = None, time.monotonic()
         while not self.stopping.is_set():
             now = time.monotonic()
+            if self._lockstepping:  # read without the lock, which the stepping callback wants
+                idle_since = now
+                self.stopping.wait(0.005)
+                continue
             with self.lock:
-                if self.fast and world.busy:  # a callback is lock-stepping its motion
+                if self.fast and world.busy:  # a callback is starting its lock-step
                     idle_since = now
                 else:
                     if world.time != mine:  # time moved under us: a motion or a reset
@@ -115,13 +121,16 @@ class SimNode(Node):
                 return pacing.STOPPED
             return pacing.CANCELED if goal_handle.is_cancel_requested else None
 
-        next_feedback = [self.world.time]
+        next_feedback = [self.world.time, 0.0]  # simulated, wall
 
         def tick() -> None:
             with self.lock:  # reentrant: run_motion holds it already
                 if self.world.time < next_feedback[0] or self.stopping.is_set():
                     return
-                next_feedback[0] = self.world.time + FEEDBACK_PERIOD_S
+                wall = time.monotonic()
+                if self.fast and wall < next_feedback[1]:
+                    return
+                next_feedback[:] = self.world.time + FEEDBACK_PERIOD_S, wall + FAST_FEEDBACK_WALL_S
                 try:
                     goal_handle.publish_feedback(feedback())
                 except Exception:  # the context went down under us (a signal)
@@ -133,8 +142,14 @@ class SimNode(Node):
             def after_chunk() -> None:
                 self.outputs.publish_due(images=False, force=handle.outcome.done)
                 tick()
-            return pacing.run_motion(self.world, handle, self.lock, sim_budget_s, interrupted,
-                                     after_chunk)
+            with self.lock:
+                self._lockstepping += 1
+            try:
+                return pacing.run_motion(self.world, handle, self.lock, sim_budget_s,
+                                         interrupted, after_chunk)
+            finally:
+                with self.lock:
+                    self._lockstepping -= 1
         return pacing.wait_motion(handle, self._stepped, sim_budget_s / self.rtf + 10.0,
                                   interrupted, tick)
 

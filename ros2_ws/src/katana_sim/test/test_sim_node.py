@@ -151,8 +151,10 @@ def test_bad_trajectories_are_refused_and_the_node_goes_on(graph, names, points,
     res = _send(graph["arm"], _traj(names, points, times))
     assert res.result.error_code == code and why in res.result.error_string
     assert res.status == GoalStatus.STATUS_ABORTED  # with the reason in the result
-    ok = _send(graph["arm"], _traj(["katana_motor1_pan_joint"], [[0.1]], [2.0]))
-    assert ok.result.error_code == 0
+    # slow enough from any pan angle: under pytest-xdist the case may be its worker's first
+    # goal, with the arm still parked at pan -3.0
+    ok = _send(graph["arm"], _traj(["katana_motor1_pan_joint"], [[0.1]], [6.0]))
+    assert ok.result.error_code == 0, ok.result.error_string
 
 
 def test_bad_gripper_goal_is_refused(graph):

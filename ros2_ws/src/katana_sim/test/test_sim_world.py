@@ -8,6 +8,8 @@ import cv2
 import numpy as np
 import pybullet as p
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from katana_description import models as m
 from katana_sim.core import CameraModel, ConfigError, PhysicsSim, SimConfig, TrajectoryGoal
 from katana_sim.core import controllers as ctl
@@ -236,3 +238,60 @@ def test_parked_arm_is_out_of_the_camera_view(world):
         physicsClientId=world._cid)
     seg = np.asarray(seg).reshape(cam.height, cam.width)
     assert ((seg >= 0) & ((seg & ((1 << 24) - 1)) == world.arm) & ((seg >> 24) - 1 >= 1)).any()
+
+
+def test_a_still_scene_is_drawn_once_and_any_change_draws_it_anew(monkeypatch):
+    w = PhysicsSim(SimConfig(num_blocks=3, seed=4))
+    try:
+        drawn = []
+        raw = w._raw_render
+        monkeypatch.setattr(w, "_raw_render", lambda *a: drawn.append(1) or raw(*a))
+        first = w.render()
+        w.advance_clock(1.0)  # the fast sim while idle: time passes, nothing moves
+        again = w.render()
+        assert len(drawn) == 1 and again is first
+        assert np.array_equal(first, w.render(fresh=True))  # the cache is what a draw gives
+        assert not first.flags.writeable  # nobody can spoil it for the next caller
+        w.set_block_pose("red", (0.25, 0.05, 0.015), 0.3)
+        moved = w.render()
+        assert len(drawn) == 3 and not np.array_equal(moved, first)
+        goal = TrajectoryGoal(list(m.ARM_JOINTS), [1.0], [[-2.0, *m.PARK_POSE[1:]]])
+        w.start_trajectory(goal)
+        w.step(24)  # the arm moved: the image must show it
+        assert len(drawn) == 3
+        w.render()
+        assert len(drawn) == 4
+    finally:
+        w.close()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(0.05, 2.0), min_size=1, max_size=5),
+       st.integers(0, 2**32 - 1), st.booleans(), st.lists(st.floats(-0.5, 3.0), max_size=20))
+def test_the_sampled_trajectory_is_the_cubic_hermite_spline_through_the_goal(gaps, seed,
+                                                                          with_velocities,
+                                                                          when):
+    """Checked against SciPy's CubicHermiteSpline (an independent implementation)."""
+    from scipy.interpolate import CubicHermiteSpline
+
+    rng = np.random.default_rng(seed)
+    times = np.cumsum(gaps)
+    points = rng.uniform(-1.0, 1.0, (len(times), 5))
+    vels = rng.uniform(-0.3, 0.3, (len(times), 5)) if with_velocities else None
+    start = rng.uniform(-1.0, 1.0, 5)
+    goal = TrajectoryGoal(list(m.ARM_JOINTS), times.tolist(), points.tolist(),
+                          vels.tolist() if vels is not None else None)
+    follower = ctl.TrajectoryFollower(goal, ctl.ArmContract(), 0.0, start)  # as PhysicsSim
+    knots = np.concatenate([[0.0], times])
+    q = np.vstack([start, points])
+    v = np.vstack([np.zeros(5), vels if vels is not None else np.zeros_like(points)])
+    spline = CubicHermiteSpline(knots, q, v)
+    t = np.clip(np.array(when, float) * times[-1], 0.0, None)
+    pos, vel = follower.sample_many(t)
+    inside = t < times[-1]
+    assert np.allclose(pos[inside], spline(t[inside]), atol=1e-9)
+    assert np.allclose(vel[inside & (t > 0)], spline(t[inside & (t > 0)], 1), atol=1e-8)
+    assert np.allclose(pos[~inside], points[-1]) and not vel[~inside].any()  # held at the end
+    one_q, one_v = follower.sample(times[-1] / 3)
+    assert np.allclose(one_q, spline(times[-1] / 3)) and np.allclose(one_v,
+                                                                       spline(times[-1] / 3, 1))

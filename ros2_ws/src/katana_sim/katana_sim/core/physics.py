@@ -115,6 +115,7 @@ class PhysicsSim:
         self._rng = np.random.default_rng(self.cfg.seed)
         self._trajectory: ctl.TrajectoryFollower | None = None
         self._gripper: ctl.GripperController | None = None
+        self._rendered: tuple[tuple, np.ndarray] | None = None  # (scene key, image)
         self.reset(self.cfg.seed)
 
     # ------------------------------------------------------------------ construction
@@ -402,10 +403,14 @@ class PhysicsSim:
         check_every = max(1, int(round(0.01 / self.dt)))
         cid, arm, idx = self._cid, self.arm, self._all_idx
         kp, kd = [0.3] * 7, [1.0] * 7
+        traj = self._trajectory
+        if traj is not None:  # completed goals: all five arm joints, ARM_JOINTS order
+            plan_q, plan_v = traj.sample_many(
+                (self._steps - traj.start_step + np.arange(n + 1)) * self.dt)  # as elapsed()
         for k in range(n):
-            traj, grip = self._trajectory, self._gripper
-            if traj is not None:  # completed goals: all five arm joints, ARM_JOINTS order
-                self._targets[:5], self._target_vel[:5] = traj.sample(self.elapsed(traj))
+            traj, grip = self._trajectory, self._gripper  # a check below may end either
+            if traj is not None:
+                self._targets[:5], self._target_vel[:5] = plan_q[k], plan_v[k]
             if grip is not None:
                 self._targets[5] = self._targets[6] = grip.target(self.elapsed(grip))
             p.setJointMotorControlArray(
@@ -415,13 +420,14 @@ class PhysicsSim:
             p.stepSimulation(physicsClientId=cid)
             self._steps += 1
             if (traj is not None or grip is not None) and (k == n - 1 or k % check_every == 0):
-                self._check_controllers()
+                # judged against the plan at the time reached (the step just made)
+                self._check_controllers(plan_q[k + 1] if traj is not None else None)
 
-    def _check_controllers(self) -> None:
+    def _check_controllers(self, desired: np.ndarray | None = None) -> None:
         pos, vel, _ = self.joint_state()
         traj = self._trajectory
         if traj is not None:
-            if traj.check(self.elapsed(traj), pos[:5], ctl.rest(vel[:5])).done:
+            if traj.check(self.elapsed(traj), pos[:5], ctl.rest(vel[:5]), desired).done:
                 self._target_vel[:5] = 0.0
                 self._trajectory = None
         grip = self._gripper
@@ -464,13 +470,29 @@ class PhysicsSim:
             self._table_mask = mask.astype(bool)
             self._pb(p.changeVisualShape, self.table, -1, rgbaColor=(0, 0, 0, 0))
 
-    def render(self) -> np.ndarray:
-        """The overhead camera image, uint8 (height, width, 3), RGB."""
+    def render(self, fresh: bool = False) -> np.ndarray:
+        """The overhead camera image, uint8 (height, width, 3), RGB, read-only.
+
+        A scene that has not moved since the last render (the fast sim between motions:
+        physics frozen) gives that image again instead of drawing it anew; `fresh` draws it
+        anyway (the render bench)."""
+        key = self._scene_key()
+        if not fresh and self._rendered is not None and self._rendered[0] == key:
+            return self._rendered[1]
         cam = self.camera
         img, depth = self._raw_render(cam.width, cam.height, cam.focal_px)
         if self._table_mask is not None:
             img[(depth >= 0.99999) & self._table_mask] = self._table_rgb
+        img.flags.writeable = False
+        self._rendered = (key, img)
         return img
+
+    def _scene_key(self) -> tuple:
+        """Everything a render shows that can change: the block poses and the arm's joints."""
+        poses = tuple(self._pb(p.getBasePositionAndOrientation, body)
+                      for body in self.blocks.values())
+        joints = tuple(s[0] for s in self._pb(p.getJointStates, self.arm, self._all_idx))
+        return tuple(self.blocks), poses, joints
 
     def ground_truth(self) -> list[BlockState]:
         """True poses, stack levels and visibility of every block."""
