@@ -76,7 +76,7 @@ class PerceptionNode(Node):
         self.block_size = tuple(p["block_size"])
         self.segmenter = Segmenter(parse_color_table(p["color_table"]),
                                    block_size=self.block_size)
-        self.params_revision = 0  # counts live changes of the settings: segment anew after one
+        self._segmented: tuple | None = None  # (calibration, levels, blocks) of the last frame
         self._apply(dict(p))
         p.on_change(self._apply)
 
@@ -86,7 +86,6 @@ class PerceptionNode(Node):
         self.latest_rgb: np.ndarray | None = None
         self.latest_header: Header | None = None
         self.frames = 0
-        self._segmented: tuple = (None, -1, {}, [])  # calibration, settings, levels, blocks
         self.before = None  # (snapshot, frame number)
 
         self.pub_detections = self.create_publisher(BlockArray, "perception/detections",
@@ -104,7 +103,7 @@ class PerceptionNode(Node):
     def _apply(self, changed: dict) -> None:
         """Segmentation and judge settings, at start-up and on a live change."""
         p, seg = self.params, self.segmenter
-        self.params_revision += 1
+        self._segmented = None  # new settings: the next frame is segmented anew
         seg.s_min, seg.v_min = int(p["saturation_min"]), int(p["value_min"])
         seg.min_area_px = int(p["min_area_px"])
         seg.min_inscribed_px = float(p["min_inscribed_px"])
@@ -152,12 +151,11 @@ class PerceptionNode(Node):
         self.frames += 1
         # A still scene seen by a still camera (the simulator between motions) repeats its
         # frame exactly: the same pixels and levels segment to the same blocks.
-        calib, revision, levels, dets = self._segmented
-        if not (calib is self.calibration and revision == self.params_revision
-                and levels == self.levels and previous is not None
+        calib, levels, dets = self._segmented or (None, None, None)
+        if not (calib is self.calibration and levels == self.levels
                 and np.array_equal(previous, rgb)):
             dets = self.segmenter.segment(rgb, self.calibration, self.levels)
-            self._segmented = (self.calibration, self.params_revision, dict(self.levels), dets)
+            self._segmented = (self.calibration, dict(self.levels), dets)
         header = Header(stamp=msg.header.stamp, frame_id=self.world_frame)
         out = BlockArray(header=header,
                          blocks=[detection_to_msg(d, self.calibration, self.block_size)

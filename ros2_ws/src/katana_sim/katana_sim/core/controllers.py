@@ -55,7 +55,7 @@ class TrajectoryFollower:
             zero for _ in q]
         if times[1] <= 0.0:  # first point at t=0: start there (validated to be close)
             times, q, v = times[1:], q[1:], v[1:]
-        self._times, self._q, self._v = times, np.array(q), np.array(v)
+        self._times, self._q, self._v = np.array(times), np.array(q), np.array(v)
         self.judge = TrajectoryJudge(goal, contract)
 
     @property
@@ -64,7 +64,7 @@ class TrajectoryFollower:
 
     @property
     def duration(self) -> float:
-        return self._times[-1]
+        return float(self._times[-1])
 
     @property
     def goal_time(self) -> float:
@@ -79,7 +79,7 @@ class TrajectoryFollower:
         """Desired positions and velocities (rows) at the absolute times t: one call per chunk
         of physics steps, since sampling each step alone cost the fast sim a third of its time
         in numpy calls on 5-vectors."""
-        times = np.asarray(self._times)
+        times = self._times
         if len(times) == 1:  # a single point at t=0: hold it
             n = len(np.atleast_1d(t))
             return np.tile(self._q[-1], (n, 1)), np.zeros((n, len(self.names)))
