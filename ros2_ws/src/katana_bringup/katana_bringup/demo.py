@@ -29,6 +29,7 @@ from katana_common.cli_args import (
     positive_seconds,
     writable_folder,
 )
+from katana_description.models import lies_flat
 
 from .run import (
     EXECUTOR_THREADS,
@@ -99,7 +100,9 @@ class FrameRecorder:
             return None
         place = msg.instance.placement.position
         near = np.hypot(block.pose.position.x - place.x, block.pose.position.y - place.y) < 0.015
-        return bool(near and block.level == msg.instance.state + 1)
+        q = block.pose.orientation
+        return bool(near and lies_flat(q.x, q.y, q.z, q.w)
+                    and block.level == msg.instance.state + 1)
 
     def _on_image(self, msg) -> None:
         try:

@@ -188,9 +188,12 @@ class GraphClient:
 
 def true_blocks(msg) -> list:
     from katana_curiosity.core.robot_paper import TrueBlock
+    from katana_description.models import lies_flat
 
     return [TrueBlock(b.id, b.pose.position.x, b.pose.position.y, b.pose.position.z,
-                      int(b.level)) for b in msg.blocks]
+                      int(b.level), lies_flat(b.pose.orientation.x, b.pose.orientation.y,
+                                              b.pose.orientation.z, b.pose.orientation.w))
+            for b in msg.blocks]
 
 
 def _at_rest(a: Sequence, b: Sequence, tol_m: float = 1e-3) -> bool:
@@ -230,9 +233,15 @@ class TruthMeasurer:
         return next(b for b in self.client.truth.blocks if b.id == bid)
 
     def _free_blocks(self, exclude: Sequence[str]) -> list:
+        """Loose blocks to place: flat on the table (one that fell onto its side is left
+        lying, as the learning loop leaves it) and within reach."""
+        from katana_description.models import lies_flat
+
         with self.client._cv:
             msg = self.client.truth
         return [b for b in msg.blocks if b.id not in exclude and b.on_top and b.level == 1
+                and lies_flat(b.pose.orientation.x, b.pose.orientation.y,
+                              b.pose.orientation.z, b.pose.orientation.w)
                 and self.reach.can_pick(b.pose.position.x, b.pose.position.y, 1)]
 
     def _stack_intact(self, height: int) -> bool:

@@ -16,6 +16,7 @@ import numpy as np
 from action_msgs.msg import GoalStatus
 from katana_common.futures import Stopped, wait_for_future
 from katana_common.qos import JOINT_STATE_QOS, STATE_QOS
+from katana_description.models import stands_upright
 from katana_interfaces.action import PickAndPlace
 from katana_interfaces.msg import BlockArray, FoveaInstance
 from katana_interfaces.srv import FindPlacement, JudgePlacement, ObserveSetting, ResetWorld
@@ -359,7 +360,8 @@ class RobotEnvironment:
         return False
 
     def _choose_block(self, blocks: BlockArray, instance: FoveaInstance, excluded: set[str]):
-        views = [BlockView(b.id, b.pose.position.x, b.pose.position.y, b.on_top, b.level)
+        views = [BlockView(b.id, b.pose.position.x, b.pose.position.y, b.on_top, b.level,
+                           stands_upright((b.size.x, b.size.y, b.size.z)))
                  for b in blocks.blocks if b.id not in excluded and not self._still_unpickable(b)]
         reach = self.config.reach
         choice = choose_block_to_move(

@@ -267,3 +267,14 @@ def test_with_nothing_unknown_anywhere_every_plan_is_worth_making(tmp_path) -> N
     assert not (bank.unknown[:4] & feasible_actions(3, 6, 1)[:4]).any()
     strategy.planner.solve()
     assert leads_towards_unknown(strategy, Choice(1, 0, PLAN, 0))
+
+
+def test_the_feasibility_table_leaves_out_what_the_fovea_cannot_offer() -> None:
+    """On the table only action 1; on one block not action 5 (the perception tests check the
+    fovea agrees); on stacks every action (action 5 does occur on turned top faces)."""
+    feasible = feasible_actions(3, 6, 1)
+    assert feasible.shape == (5, 6)
+    assert feasible[0].tolist() == [True, False, False, False, False, False]
+    assert feasible[1].tolist() == [True, True, True, True, False, True]
+    assert feasible[2:].all()
+    assert feasible_actions(3, 4, 1)[1].all()  # another fovea: no such geometry assumed

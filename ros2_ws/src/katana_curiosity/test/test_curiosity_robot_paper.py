@@ -118,6 +118,11 @@ def test_placement_stayed_on_hand_built_scenes():
     shoved = [before[0], _block("blue", 0.215, 0.0, 2), _block("green", 0.22, 0.0, 3)]
     assert not rp.placement_stayed(before, shoved, "green", ["red", "blue"])
     assert rp.placement_stayed(before, before, "green", [])  # on the table, flat
+    # on the stack at the right level, but lying on its side: it fell over (as the judge says)
+    on_its_side = before[:2] + [rp.TrueBlock("green", 0.21, 0.0, 0.08, 3, flat=False)]
+    assert not rp.placement_stayed(before, on_its_side, "green", ["red", "blue"])
+    on_the_table_on_its_side = before[:2] + [rp.TrueBlock("green", 0.1, 0.1, 0.02, 1, flat=False)]
+    assert not rp.placement_stayed(before, on_the_table_on_its_side, "green", [])
 
 
 @given(st.integers(1, 5), st.integers(1, 3), st.integers(2, 6))

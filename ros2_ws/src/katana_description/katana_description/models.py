@@ -141,6 +141,27 @@ def finger_angle_for_opening(width: float) -> float:
 
 # Blocks and table (shared scene defaults).
 BLOCK_SIZE: tuple[float, float, float] = (0.04, 0.04, 0.03)
+
+
+def stands_upright(size) -> bool:
+    """A block's resting extents (x, y along its yaw, z vertical) show it on its largest face.
+
+    Only an upright block is a support or a block to move: one that fell onto its side is
+    taller than a level and narrower than the gripper expects (perception reports its size).
+    """
+    return float(size[2]) <= min(float(size[0]), float(size[1])) + 1e-9
+
+
+#: how far a block's own z axis may lean from the vertical and the block still lie flat
+FLAT_TOLERANCE_RAD = math.radians(10.0)
+
+
+def lies_flat(qx: float, qy: float, qz: float, qw: float) -> bool:
+    """A block's orientation (unit quaternion) puts its z axis near the vertical, up or down:
+    it rests on its top or bottom face, not on a side and not leaning (ground truth only)."""
+    return abs(1.0 - 2.0 * (qx * qx + qy * qy)) >= math.cos(FLAT_TOLERANCE_RAD)
+
+
 BLOCK_MASS = 0.04
 COLOURS: dict[str, tuple[float, float, float, float]] = {
     "red": (0.85, 0.10, 0.10, 1.0),

@@ -18,6 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import yaml
+from katana_description.models import BLOCK_SIZE
 
 from .core.calibration import Calibration, load_camera_info_yaml, solve_extrinsics
 from .core.colors import DEFAULT_COLOR_TABLE, parse_color_table
@@ -122,7 +123,7 @@ def read_points(path: Path) -> tuple[dict[str, tuple[float, float]], list, list,
     data = yaml.safe_load(path.read_text()) or {}
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a mapping with 'blocks' and/or 'markers'")
-    size = tuple(float(v) for v in data.get("block_size", (0.04, 0.04, 0.03)))
+    size = tuple(float(v) for v in data.get("block_size", BLOCK_SIZE))
     if len(size) != 3 or min(size) <= 0:
         raise ValueError(f"{path}: block_size must be three positive numbers")
     blocks = {}

@@ -16,7 +16,7 @@ from .core.calibration import Calibration, load_extrinsics_yaml
 from .core.fovea import Instance
 from .core.judge import Placement
 from .core.memory import Block, Seen, footprint_overlap
-from .core.segmentation import Detection
+from .core.segmentation import Detection, wrap_quarter
 
 _CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4}
 
@@ -122,16 +122,21 @@ def _size(size: Sequence[float]) -> Vector3:
     return Vector3(x=float(size[0]), y=float(size[1]), z=float(size[2]))
 
 
-def detection_to_msg(d: Detection, calib: Calibration, size: Sequence[float]) -> BlockMsg:
-    """A visible block, located at the level it was segmented with (1 unless memory knew)."""
-    z_top = d.level * size[2]
+def detection_to_msg(d: Detection, calib: Calibration, block_size: Sequence[float]) -> BlockMsg:
+    """A visible block, located at the level it was segmented with (1 unless memory knew),
+    with its resting size: x along the reported yaw, z vertical (a block on its side is
+    taller than a level)."""
+    z_top = (d.level - 1) * block_size[2] + d.size[2]
     x, y = (float(a) for a in calib.pixel_to_world(d.u, d.v, z_top))
-    yaw = calib.image_angle_to_yaw(d.u, d.v, d.angle, z_top)
-    yaw = (yaw + math.pi / 4) % (math.pi / 2) - math.pi / 4
-    b = BlockMsg(id=d.color, color=d.color, size=_size(size), yaw=yaw, level=d.level,
+    edge_yaw = calib.image_angle_to_yaw(d.u, d.v, d.angle, z_top)
+    yaw = wrap_quarter(edge_yaw)
+    sx, sy, sz = d.size
+    if round((edge_yaw - yaw) / (math.pi / 2)) % 2:  # yaw now runs along the other edge
+        sx, sy = sy, sx
+    b = BlockMsg(id=d.color, color=d.color, size=_size((sx, sy, sz)), yaw=yaw, level=d.level,
                  on_top=bool(d.complete), visible=True, pixel_u=d.u, pixel_v=d.v,
                  pixel_angle=d.angle)
-    b.pose.position.x, b.pose.position.y, b.pose.position.z = x, y, z_top - size[2] / 2.0
+    b.pose.position.x, b.pose.position.y, b.pose.position.z = x, y, z_top - sz / 2.0
     yaw_quaternion(b.pose, yaw)
     return b
 
@@ -140,8 +145,13 @@ def seen_from_msg(b: BlockMsg) -> Seen:
     vals = (b.pixel_u, b.pixel_v, b.pixel_angle)
     if not b.id or not all(math.isfinite(v) for v in vals):
         raise ValueError(f"detection {b.id!r} has no id or no pixel position/angle")
+    size: tuple[float, float, float] | None = (b.size.x, b.size.y, b.size.z)
+    if size == (0.0, 0.0, 0.0):
+        size = None  # not measured: the nominal block
+    elif not all(math.isfinite(v) and v > 0 for v in size):
+        raise ValueError(f"detection {b.id!r} has size {size}")
     return Seen(b.id, b.color or b.id, float(b.pixel_u), float(b.pixel_v),
-                float(b.pixel_angle), bool(b.on_top))
+                float(b.pixel_angle), bool(b.on_top), size)
 
 
 def block_to_msg(b: Block) -> BlockMsg:

@@ -133,7 +133,7 @@ class FoveaNode(Node):
         except ValueError as err:
             self.get_logger().warn(f"memory/blocks rejected: {err}", throttle_duration_sec=5.0)
             return
-        key = sorted((b.id, b.level, b.support) for b in blocks)
+        key = sorted((b.id, b.level, b.support, b.upright) for b in blocks)
         poses = {b.id: (b.x, b.y) for b in blocks}
         if self._key is None or key != self._key[0] or any(
             math.hypot(x - self._key[1][i][0], y - self._key[1][i][1]) > 0.003

@@ -256,3 +256,17 @@ def test_table_instance_needs_a_free_place():
 def test_invalid_parameters_are_refused():
     with pytest.raises(ValueError, match="offset_px"):
         FoveaScene([], CALIB, FoveaParams(offset_px=25))
+
+
+@settings(max_examples=25, deadline=None)
+@given(x=st.floats(0.16, 0.28), y=st.floats(-0.1, 0.1), yaw=st.floats(-0.78, 0.78))
+def test_on_a_single_block_the_fovea_never_realises_action_5(x, y, yaw):
+    """The learner's feasibility table (katana_curiosity robot_loop.feasible_actions) rules out
+    action 5 on one block: the fovea turns with the block, and an aligned rectangle holding
+    three corners of the probe square holds the fourth. The fovea's own search agrees (pixel
+    rounding could break it only along a one-pixel line)."""
+    fovea = FoveaScene([Block("red", "red", x, y, yaw)], CALIB)
+    with pytest.raises(NotFound):
+        fovea.find(1, 5)
+    for action in (1, 2, 3, 4, 6):  # the search does reach every other action
+        assert fovea.find(1, action).action == action

@@ -16,7 +16,8 @@ H = 0.03
 NAMES = ["red", "green", "blue", "yellow", "orange", "purple"]
 SPOTS = [(0.16, 0.11), (0.28, 0.10), (0.17, -0.10), (0.27, -0.11), (0.22, 0.0), (0.22, 0.14),
          (0.22, -0.14), (0.155, 0.0), (0.285, 0.0)]
-KINDS = ("stable", "slid_off", "collapse", "support_pushed", "support_slid", "leaning", "gone")
+KINDS = ("stable", "slid_off", "collapse", "support_pushed", "support_slid", "leaning", "gone",
+         "on_its_side")
 
 
 def memory_of(scene: list[SceneBlock], supports: dict) -> list[Block]:
@@ -98,6 +99,9 @@ def trial(seed: int, kind: str):
                                 s * H + 0.005, yaw=ang, pitch=0.45))
     elif kind == "gone":  # fell off the table, out of view
         pass
+    elif kind == "on_its_side":  # on the spot, but tipped over onto the stack: it stands
+        # 40 mm tall where an upright block stands 30 (its top face 40 x 30, not square)
+        after.append(SceneBlock(mover, px, py, s * H + 0.02, yaw=pyaw, roll=math.pi / 2))
     return before, supports, after, mover, Placement(s, px, py, tuple(stack)), label
 
 

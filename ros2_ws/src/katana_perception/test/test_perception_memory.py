@@ -4,6 +4,7 @@ falls and collapses, each rendered, segmented and folded in as the nodes would."
 import math
 
 import numpy as np
+import pytest
 from katana_perception.core.calibration import Calibration
 from katana_perception.core.memory import Block, BlockMemory, Seen
 from katana_perception.core.segmentation import Segmenter
@@ -265,3 +266,48 @@ def test_forgetting_a_block_that_is_gone():
     assert "red" in memory.blocks and not memory.blocks["red"].visible
     memory.update(seen)
     assert "red" not in memory.blocks
+
+
+def test_a_block_that_fell_onto_its_side_is_remembered_so_and_offers_no_placement():
+    """Rendered on its side, a block is remembered 40 mm tall on a 40 x 30 footprint; the
+    fovea offers no placement on it; stood up again, it is a support again."""
+    from katana_perception.conversions import (
+        blocks_from_msg,
+        blocks_to_msg,
+        detection_to_msg,
+        seen_from_msg,
+    )
+    from katana_perception.core.fovea import FoveaScene, NotFound
+    from std_msgs.msg import Header
+
+    def look(scene):  # as perception and block_memory see it: through perception/detections
+        seg = Segmenter()
+        dets = seg.segment(Renderer(CALIB).render(scene, seed=1)[0], CALIB, memory.levels())
+        return memory.update([seen_from_msg(detection_to_msg(d, CALIB, seg.block_size))
+                              for d in dets])
+
+    memory = BlockMemory(CALIB)
+    memory.set_blocks([Block("red", "red", 0.22, 0.06, 0.2), Block("blue", "blue", 0.2, -0.08, 0)])
+    blue = stack_block("blue", 0.2, -0.08, 1, 0.0)
+    assert FoveaScene(memory.snapshot(), CALIB).available_states() == [0, 1]
+    look([SceneBlock("red", 0.25, 0.02, 0.02, yaw=0.3, roll=math.pi / 2), blue])
+    red = memory.blocks["red"]
+    assert not red.upright and red.size[2] == 0.04 and sorted(red.size[:2]) == [0.03, 0.04]
+    assert math.hypot(red.x - 0.25, red.y - 0.02) < 0.003
+    assert red.z == 0.02 and red.top_z == 0.04 and memory.blocks["blue"].upright
+    # the long edge of the footprint runs along the block's yaw (0.3) or across it
+    long_yaw = red.yaw if red.size[0] > red.size[1] else red.yaw + math.pi / 2
+    assert abs(math.sin(long_yaw - 0.3)) < 0.05
+    # the fovea sees it as an obstacle, not as a stack to place on
+    again = blocks_from_msg(blocks_to_msg(memory.snapshot(), Header()))
+    assert [b.size for b in again] == [b.size for b in memory.snapshot()]
+    fovea = FoveaScene(again, CALIB)
+    placements = fovea.observe()
+    assert all(i.support_ids != ("red",) for i in placements)
+    assert {i.support_ids for i in placements if i.state == 1} == {("blue",)}
+    with pytest.raises(NotFound):
+        FoveaScene([b for b in again if b.id == "red"], CALIB).find(1, 6)
+    # stood up again where it lay: upright, and a support
+    look([stack_block("red", 0.25, 0.02, 1, 0.3), blue])
+    assert memory.blocks["red"].upright and memory.blocks["red"].size == (0.04, 0.04, 0.03)
+    assert ("red",) in {i.support_ids for i in FoveaScene(memory.snapshot(), CALIB).observe()}

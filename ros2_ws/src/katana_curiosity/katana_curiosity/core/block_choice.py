@@ -16,6 +16,7 @@ class BlockView:
     y: float
     on_top: bool
     level: int
+    upright: bool = True  # False: it fell onto its side (too tall and narrow to stack)
 
 
 @dataclass(frozen=True)
@@ -52,13 +53,17 @@ def choose_block_to_move(
     target_stack: Sequence[str],
     reachable=lambda block: True,
 ) -> BlockView | None:
-    """The accessible top block furthest from the placement, never one of the target stack.
+    """The accessible upright top block furthest from the placement, never one of the target
+    stack.
 
     Furthest first "avoids interference with the blocks at the selected placement location".
-    Ties go to the lower block id, so the choice is deterministic.
+    Ties go to the lower block id, so the choice is deterministic. A block on its side stays
+    where it lies: placed, it would stand on its side and measure the fall of a block the
+    paper never stacks.
     """
     excluded = set(target_stack)
-    candidates = [b for b in blocks if b.on_top and b.id not in excluded and reachable(b)]
+    candidates = [b for b in blocks
+                  if b.on_top and b.upright and b.id not in excluded and reachable(b)]
     if not candidates:
         return None
     px, py = placement_xy

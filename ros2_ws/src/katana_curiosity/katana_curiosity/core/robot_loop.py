@@ -39,12 +39,22 @@ def robot_bank(max_height: int, n_actions: int, alpha: float, theta: float) -> P
                          QueryRule(alpha, theta), n_states=max_height + 2)
 
 
+#: the fovea's probe points (centre and four corners): actions are 1 + the points on the block
+FOVEA_POINTS = 5
+
+
 def feasible_actions(max_height: int, n_actions: int, table_action: int) -> np.ndarray:
-    """(states, actions) table of what can ever occur: on the table only `table_action`."""
+    """(states, actions) table of what can ever occur: on the table only `table_action`; on a
+    single block, for the five-point fovea, not action 5 (all points but one corner on it).
+    The fovea turns with the block it looks at, so block and probe square are aligned, and an
+    aligned rectangle holding three corners of a square holds the fourth. On a stack the
+    intersection of turned top faces is not aligned, and action 5 occurs (rarely)."""
     feasible = np.ones((max_height + 2, n_actions), dtype=bool)
     if table_action:
         feasible[0] = False
         feasible[0, table_action - 1] = True
+    if n_actions == FOVEA_POINTS + 1 and max_height >= 1:
+        feasible[1, FOVEA_POINTS - 1] = False
     return feasible
 
 

@@ -381,17 +381,19 @@ class TrueBlock:
     y: float
     z: float
     level: int
+    flat: bool = True  # on its top or bottom face (not on a side, not leaning)
 
 
 def placement_stayed(before: Sequence[TrueBlock], after: Sequence[TrueBlock], placed: str,
                      stack: Sequence[str], moved_tol_m: float = 0.01) -> bool:
-    """The placed block rests on top of the stack it was placed upon (level height + 1), and
-    the stack's blocks are still where they were: the paper's 'stable'. On the table (empty
-    stack) a placement stays when the block lies flat at level 1."""
+    """The placed block lies flat on top of the stack it was placed upon (level height + 1),
+    and the stack's blocks are still where they were: the paper's 'stable'. On the table
+    (empty stack) a placement stays when the block lies flat at level 1. A block that came to
+    rest on its side fell over, on the stack or not (the judge says the same)."""
     now = {b.id: b for b in after}
     then = {b.id: b for b in before}
     block = now.get(placed)
-    if block is None or block.level != len(stack) + 1:
+    if block is None or block.level != len(stack) + 1 or not block.flat:
         return False
     for bid in stack:
         a, b = then.get(bid), now.get(bid)

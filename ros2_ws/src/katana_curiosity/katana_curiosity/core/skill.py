@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .planner import HeightMDP, lspi, transition_model
+from .robot_loop import feasible_actions
 
 
 @dataclass(frozen=True)
@@ -88,10 +89,7 @@ class StackingSkill:
             transitions[s, :, top + 1] = 1.0 - self.success[s]
         rewards = np.zeros((top + 2, model.n_actions))
         rewards[top - 1] = self.success[top - 1]  # 1 on the placement that reaches the target
-        feasible = np.ones((top + 2, model.n_actions), dtype=bool)
-        if table_action:
-            feasible[0] = False
-            feasible[0, table_action - 1] = True
+        feasible = feasible_actions(top, model.n_actions, table_action)
         self.mdp = HeightMDP(transitions, rewards, gamma)
         self.q = lspi(self.mdp, feasible=feasible).q
 

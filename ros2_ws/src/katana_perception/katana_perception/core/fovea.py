@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from .calibration import Calibration
-from .memory import Block
+from .memory import Block, top_height
 from .segmentation import wrap_quarter
 
 N_POINTS = 5
@@ -156,6 +156,12 @@ class _Stack:
     def ids(self) -> tuple[str, ...]:
         return tuple(b.id for b in self.blocks)
 
+    @property
+    def offered(self) -> bool:
+        """A placement is offered on a stack of upright blocks only: one on its side is no
+        level of a stack (and the paper's blocks never lie on their side)."""
+        return all(b.upright for b in self.blocks)
+
 
 class NotFound(Exception):
     """No fovea location realises the requested state-action pair; the message says why."""
@@ -189,7 +195,7 @@ class FoveaScene:
         c = self.calibration
         if self.masks is not None and b.id in self.masks:
             return np.asarray(self.masks[b.id], dtype=bool)
-        poly = c.square_polygon(b.x, b.y, b.yaw, level * b.size[2], b.size[0], b.size[1])
+        poly = c.square_polygon(b.x, b.y, b.yaw, top_height(level, b.size), b.size[0], b.size[1])
         m = np.zeros((c.height, c.width), dtype=np.uint8)
         pts = np.rint(poly * (1 << _SHIFT)).astype(np.int32).reshape(1, -1, 2)
         cv2.fillPoly(m, pts, 1, lineType=cv2.LINE_8, shift=_SHIFT)
@@ -265,7 +271,7 @@ class FoveaScene:
 
     def _instance(self, state: int, bits, u, v, angle, stack: _Stack | None) -> Instance | None:
         c = self.calibration
-        h = self.blocks[0].size[2] if self.blocks else 0.03
+        h = min(self.blocks[0].size) if self.blocks else 0.03  # one level: an upright block
         z_top = state * h
         x, y = (float(a) for a in c.pixel_to_world(u, v, z_top))
         if not (math.isfinite(x) and math.isfinite(y)) or not self._reachable(x, y, state):
@@ -283,7 +289,7 @@ class FoveaScene:
     # ---------------------------------------------------------------- scan
     def available_states(self, max_state: int | None = None) -> list[int]:
         cap = self.params.max_state if max_state is None else min(max_state, self.params.max_state)
-        return [0] + sorted({st.height for st in self.stacks if st.height <= cap})
+        return [0] + sorted({st.height for st in self.stacks if st.height <= cap and st.offered})
 
     def _grid(self, step: float) -> list[tuple[float, float]]:
         r = self.params.grid_radius_px
@@ -296,7 +302,7 @@ class FoveaScene:
         """Fovea locations around a stack top, in scan order."""
         c = self.calibration
         top = st.top
-        z = st.height * top.size[2]
+        z = top_height(st.height, top.size)
         u0, v0 = (float(a) for a in c.world_to_pixel(top.x, top.y, z))
         ang = c.yaw_to_image_angle(top.x, top.y, top.yaw, z)
         e1 = np.array([math.cos(ang), math.sin(ang)])
@@ -361,7 +367,7 @@ class FoveaScene:
                     out.append(inst)
                 continue
             for st in self.stacks:
-                if st.height == s:
+                if st.height == s and st.offered:
                     out.extend(self._stack_instances(st, self.params.grid_step_px))
         return out
 
@@ -385,7 +391,7 @@ class FoveaScene:
             return inst
         for step in (self.params.grid_step_px, self.params.fine_step_px):
             for st in self.stacks:
-                if st.height != state:
+                if st.height != state or not st.offered:
                     continue
                 for inst in self._stack_instances(st, step, want=action):
                     return inst

@@ -19,10 +19,11 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from katana_description.models import stands_upright
 
 from .calibration import Calibration
 from .memory import Block
-from .segmentation import Detection, Segmenter
+from .segmentation import Detection, Segmenter, box_corners
 
 STABLE, FELL = 1, -1
 
@@ -94,6 +95,8 @@ class Judge:
                            f"point (tolerance {p.position_tolerance * 1000:.0f} mm)", info)
         if not det.complete:
             return Verdict(FELL, f"{placed_id} is partly covered: something fell onto it", info)
+        if not stands_upright(det.size):
+            return Verdict(FELL, f"{placed_id} lies on its side", info)
         for sid in placement.support_ids:
             sd = after.detections.get(sid)
             mem = before.blocks.get(sid)
@@ -129,10 +132,9 @@ class Judge:
 def silhouette(calib: Calibration, b: Block, shape: tuple[int, int], grow_m: float) -> np.ndarray:
     """Image region of a block (top and side faces: the hull of its 8 projected corners),
     grown by grow_m in the table plane."""
-    sx, sy = b.size[0] + 2 * grow_m, b.size[1] + 2 * grow_m
-    top = calib.square_polygon(b.x, b.y, b.yaw, b.level * b.size[2], sx, sy)
-    bottom = calib.square_polygon(b.x, b.y, b.yaw, (b.level - 1) * b.size[2], sx, sy)
-    hull = cv2.convexHull(np.vstack([top, bottom]).astype(np.float32))
+    grown = (b.size[0] + 2 * grow_m, b.size[1] + 2 * grow_m, b.size[2])
+    corners = box_corners(b.x, b.y, b.top_z - b.size[2], b.yaw, grown)
+    hull = cv2.convexHull(calib.project(corners).astype(np.float32))
     mask = np.zeros(shape, dtype=np.uint8)
     cv2.fillPoly(mask, [np.rint(hull).astype(np.int32)], 1)
     return mask.astype(bool)

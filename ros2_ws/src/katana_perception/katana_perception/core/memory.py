@@ -23,11 +23,10 @@ from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
+from katana_description.models import BLOCK_SIZE, stands_upright
 
 from .calibration import Calibration
 from .segmentation import wrap_quarter
-
-BLOCK_SIZE = (0.04, 0.04, 0.03)
 
 
 @dataclass
@@ -52,11 +51,21 @@ class Block:
 
     @property
     def z(self) -> float:
-        return (self.level - 0.5) * self.size[2]
+        return self.top_z - self.size[2] / 2.0
 
     @property
     def top_z(self) -> float:
-        return self.level * self.size[2]
+        return top_height(self.level, self.size)
+
+    @property
+    def upright(self) -> bool:
+        return stands_upright(self.size)
+
+
+def top_height(level: int, size: Sequence[float]) -> float:
+    """Height of a block's top face at `level`, resting on upright blocks of its kind (as tall
+    as its shortest edge): a block on its side stands taller than a level."""
+    return (level - 1) * min(size) + size[2]
 
 
 @dataclass
@@ -69,6 +78,8 @@ class Seen:
     v: float
     angle: float  # image angle of a top-face edge, rad
     complete: bool  # top face fully visible: nothing rests on it
+    # resting size when measured (None: nominal): x along the yaw the angle gives, z vertical
+    size: tuple[float, float, float] | None = None
 
 
 def footprint_overlap(a: Block, b: Block) -> float:
@@ -165,14 +176,14 @@ class BlockMemory:
         return True
 
     # ------------------------------------------------------------------ geometry
-    def _locate(self, s: Seen, level: int) -> tuple[float, float, float]:
-        z_top = level * self.block_size[2]
+    def _locate(self, s: Seen, level: int, size: Sequence[float]) -> tuple[float, float, float]:
+        z_top = top_height(level, size)
         x, y = self.calibration.pixel_to_world(s.u, s.v, z_top)
         yaw = self.calibration.image_angle_to_yaw(s.u, s.v, s.angle, z_top)
         return float(x), float(y), wrap_quarter(yaw)
 
     def _place(self, b: Block, s: Seen) -> None:
-        b.x, b.y, b.yaw = self._locate(s, b.level)
+        b.x, b.y, b.yaw = self._locate(s, b.level, b.size)
         b.pixel_u, b.pixel_v, b.pixel_angle = s.u, s.v, s.angle
 
     # ------------------------------------------------------------------ updates
@@ -189,14 +200,19 @@ class BlockMemory:
         for s in seen:
             b = self.blocks.get(s.id)
             if b is None:
-                b = Block(s.id, s.color, 0.0, 0.0, 0.0, size=self.block_size)
+                b = Block(s.id, s.color, 0.0, 0.0, 0.0, size=s.size or self.block_size)
                 self.blocks[s.id] = b
                 self._place(b, s)
                 b.rest_frame = self.frame
                 moved.add(s.id)
                 events[s.id] = "new"
                 continue
-            x, y, yaw = self._locate(s, b.level)
+            if s.complete:  # a clean view tells upright from on its side; a covered one cannot
+                size = s.size or self.block_size
+                if stands_upright(size) != b.upright:
+                    events[s.id] = "upright" if stands_upright(size) else "on its side"
+                b.size = size
+            x, y, yaw = self._locate(s, b.level, b.size)
             tol = (self.params.position_tolerance if s.complete
                    else self.params.occluded_tolerance)
             if math.hypot(x - b.x, y - b.y) > tol:
@@ -316,4 +332,4 @@ class BlockMemory:
 
     def _relocate_from_pixels(self, b: Block) -> None:
         s = Seen(b.id, b.color, b.pixel_u, b.pixel_v, b.pixel_angle, True)
-        b.x, b.y, b.yaw = self._locate(s, b.level)
+        b.x, b.y, b.yaw = self._locate(s, b.level, b.size)

@@ -13,15 +13,24 @@ one on top loses part of its top face. Given the calibration and the block's lev
 memory; 1 when unknown), the top face, a square of known pixel size, is placed against the
 blob's outer edge along each of its two axes, or against its inner edge plus the side face
 when the outer edge is covered by another block.
+
+A block that fell can lie on its side: its top face is then a rectangle and it stands taller
+than a level. For a fully visible block the silhouettes of the three resting boxes (upright,
+or on either side) are projected through the calibration, each moved until its centroid
+meets the blob's, and the one overlapping the blob best (by a margin, else upright) gives
+the block's resting size. The image outline alone cannot tell: side faces widen a square top
+by up to a third of its edge here, as much as a side lying block is narrower.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from katana_description.models import BLOCK_SIZE
 
 from .calibration import Calibration
 from .colors import DEFAULT_COLOR_TABLE, ColorRange
@@ -48,6 +57,9 @@ class Detection:
     level: int  # level assumed for the estimate (1 = on the table)
     occluded_fraction: float  # share of the estimated top face covered by other colours
     complete: bool  # top face not covered by another block: nothing rests on it
+    # resting extents, m: along the image direction `angle`, across it, and vertical;
+    # z above the smallest edge means the block lies on its side
+    size: tuple[float, float, float] = BLOCK_SIZE
 
     def pixels(self) -> np.ndarray:
         """Nx2 (u, v) image coordinates of the blob's pixels."""
@@ -62,7 +74,9 @@ class Detection:
 
 
 class Segmenter:
-    """Colour table -> per-block detections; stateless apart from its settings."""
+    """Colour table -> per-block detections. Apart from its settings it keeps only the
+    resting sizes of the last image's blobs: while the arm moves, the blocks it does not
+    carry give the same blobs frame after frame, and their silhouette fits are reused."""
 
     def __init__(
         self,
@@ -71,9 +85,10 @@ class Segmenter:
         v_min: int = 40,
         min_area_px: int = 120,
         min_inscribed_px: float = 6.0,
-        block_size: tuple[float, float, float] = (0.04, 0.04, 0.03),
+        block_size: tuple[float, float, float] = BLOCK_SIZE,
         occlusion_threshold: float = 0.04,
         median: bool = True,
+        side_margin: float = 0.04,
     ) -> None:
         if not table:
             raise ValueError("the colour table is empty")
@@ -87,6 +102,12 @@ class Segmenter:
         self.block_size = tuple(float(s) for s in block_size)
         self.occlusion_threshold = float(occlusion_threshold)
         self.median = median
+        # IoU by which a side-lying silhouette must beat the upright one. On 165 sim renders
+        # over the reach, upright blocks scored >= -0.003 (upright minus side), blocks on
+        # their side <= -0.08.
+        self.side_margin = float(side_margin)
+        self._resting: dict[tuple, tuple] = {}  # blob key -> (size, centre), last image only
+        self._resting_now: dict[tuple, tuple] = {}
         lut = np.zeros(256, dtype=np.uint8)
         for i, c in enumerate(self.table):
             for lo, hi in c.hues:
@@ -124,6 +145,7 @@ class Segmenter:
     ) -> list[Detection]:
         out: list[Detection] = []
         levels = levels or {}
+        self._resting, self._resting_now = self._resting_now, {}
         # Find each colour's region on a 4x subsampled grid, then label components only in
         # that crop: a full-frame connected-components pass per colour costs ~1 ms each.
         step = 4
@@ -193,11 +215,36 @@ class Segmenter:
         theta = wrap_quarter(np.deg2rad(deg))
         centre, axes, top = self._fit(pts, theta, labels, value, calib, level)
         occ = self._occlusion(labels, value, centre, axes, top)
+        complete = occ < self.occlusion_threshold
+        size = self.block_size
+        if calib is not None and complete:
+            key = (name, level, x0, y0, w, h, area, theta, id(calib), sub.tobytes())
+            found = self._resting.get(key)
+            if found is None:  # (the calibration is kept with it: its id stays its own)
+                found = (calib, *self._resting_size(sub, (x0, y0), theta, calib, level))
+            self._resting_now[key] = found
+            _, size, side_centre = found
+            if side_centre is not None:
+                centre = side_centre
         return Detection(
             color=name, u=float(centre[0]), v=float(centre[1]), angle=theta, area=area,
             bbox=(x0, y0, w, h), mask=sub, top_px=float(top), level=level,
-            occluded_fraction=occ, complete=occ < self.occlusion_threshold,
+            occluded_fraction=occ, complete=complete, size=size,
         )
+
+    def _resting_size(self, sub, origin, theta, calib, level):
+        """(size, None) for an upright block; (size, top-face centre px) for one on its side."""
+        sx, sy, sz = self.block_size
+        z_bottom = (level - 1) * sz
+        ys, xs = np.nonzero(sub)
+        blob_uv = np.array([xs.mean() + origin[0], ys.mean() + origin[1]])
+        fits = [_fit_box(calib, sub, origin, blob_uv, theta, size, z_bottom)
+                for size in ((sx, sy, sz), (sx, sz, sy), (sz, sy, sx))]
+        best = max((1, 2), key=lambda k: fits[k][0])
+        if fits[best][0] <= fits[0][0] + self.side_margin:
+            return self.block_size, None
+        size = ((sx, sz, sy), (sz, sy, sx))[best - 1]
+        return size, fits[best][1]
 
     def _fit(self, pts, theta, labels, value, calib, level):
         """Top-face centre for edge direction theta: centre, axes, top edge length (px)."""
@@ -264,6 +311,50 @@ class Segmenter:
         pts = centre + (a.ravel() * half)[:, None] * axes[0] + (b.ravel() * half)[:, None] * axes[1]
         got = self._sample(labels, pts)
         return float(((got != 0) & (got != value)).mean())
+
+
+def box_corners(x: float, y: float, z_bottom: float, yaw: float, size) -> np.ndarray:
+    """8x3 world corners of a box resting at (x, y) on the plane z_bottom, turned by yaw."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    half = np.array([[i, j] for i in (-0.5, 0.5) for j in (-0.5, 0.5)]) * size[:2]
+    xy = np.column_stack([x + c * half[:, 0] - s * half[:, 1], y + s * half[:, 0] + c * half[:, 1]])
+    return np.vstack([np.column_stack([xy, np.full(4, z_bottom + dz)]) for dz in (0.0, size[2])])
+
+
+def _fit_box(calib: Calibration, sub: np.ndarray, origin, blob_uv: np.ndarray, theta: float,
+             size, z_bottom: float, moves: int = 2) -> tuple[float, np.ndarray]:
+    """IoU of a box's silhouette with a blob, the box moved until the centroids meet, and
+    the image point of its top-face centre. A box's silhouette is the convex hull of its
+    projected corners."""
+    h, w = sub.shape
+    pad = 16
+    z_mid = z_bottom + size[2] / 2.0
+    yaw = calib.image_angle_to_yaw(blob_uv[0], blob_uv[1], theta, z_mid)
+    x, y = (float(a) for a in calib.pixel_to_world(blob_uv[0], blob_uv[1], z_mid))
+    offset = np.array([origin[0] - pad, origin[1] - pad], dtype=np.float64)
+    box = np.zeros((h + 2 * pad, w + 2 * pad), np.uint8)
+
+    def draw() -> float:
+        uv = calib.project(box_corners(x, y, z_bottom, yaw, size))
+        box[:] = 0
+        cv2.fillConvexPoly(box, cv2.convexHull(np.rint((uv - offset) * 16).astype(np.int32)),
+                           1, lineType=cv2.LINE_8, shift=4)
+        return cv2.moments(box, binaryImage=True)
+
+    for _ in range(moves):
+        m = draw()
+        if m["m00"] == 0:
+            return 0.0, blob_uv
+        got = np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]]) + offset
+        wx, wy = calib.pixel_to_world([blob_uv[0], got[0]], [blob_uv[1], got[1]], z_mid)
+        x, y = x + float(wx[0] - wx[1]), y + float(wy[0] - wy[1])
+    draw()
+    blob = np.zeros(box.shape, dtype=bool)
+    blob[pad:pad + h, pad:pad + w] = sub
+    filled = box.astype(bool)
+    iou = float((blob & filled).sum() / max(1, (blob | filled).sum()))
+    top = calib.project(np.array([[x, y, z_bottom + size[2]]]))[0]
+    return iou, top
 
 
 def check_rgb(rgb: np.ndarray) -> None:

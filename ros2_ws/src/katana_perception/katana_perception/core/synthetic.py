@@ -15,12 +15,12 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from katana_description.models import BLOCK_SIZE
 from scipy.spatial.transform import Rotation
 
 from .calibration import Calibration
 from .colors import NOMINAL_RGB
 
-BLOCK_SIZE = (0.04, 0.04, 0.03)
 TOP_FACE = 4  # index of the +z face in FACES
 # Faces as (axis, sign); corners are listed counter-clockwise seen from outside.
 FACES = ((0, 1), (0, -1), (1, 1), (1, -1), (2, 1), (2, -1))

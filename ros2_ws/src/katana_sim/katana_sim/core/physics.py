@@ -541,7 +541,7 @@ class PhysicsSim:
                     id=bid, color=bid, position=tuple(pos.tolist()), quaternion=tuple(quat),
                     yaw=_yaw_of(quat), size=tuple(self.cfg.block_size), level=level[bid],
                     on_top=bid not in covered, visible=in_view and bid not in covered,
-                    tilted=abs(rot[2, 2]) < math.cos(math.radians(10)),
+                    tilted=not m.lies_flat(*quat),
                     pixel_u=float(uv[0]) if in_view else math.nan,
                     pixel_v=float(uv[1]) if in_view else math.nan,
                     pixel_angle=angle if in_view else math.nan,
