@@ -56,6 +56,47 @@ def test_planned_values_equal_value_iteration_on_the_same_mdp():
     assert skill.q[2, 5] >= 0.95 - 1e-12 and skill.success[2, 5] == pytest.approx(0.95)
 
 
+def test_the_skill_does_not_take_a_stack_apart_to_build_it_again():
+    """Seen on the sim: two two-stacks built with action 4 offer only poor placements; the
+    MDP valued a block on the table (a fresh start) above them, the block came off a
+    two-stack, and the skill built it again, to its bound. The table is the last resort."""
+    skill = StackingSkill(LearnedModel.from_margins(GOOD), target_height=3)
+    two_two_stacks = [(0, 1), (2, 1), (2, 2)]
+    assert skill.q[0, 0] > max(skill.q[2, 0], skill.q[2, 1])  # what the MDP alone prefers
+    choice = skill.choose(two_two_stacks)
+    assert (choice.state, choice.action) == (2, 2)
+    assert skill.choose([(0, 1), (3, 6)]).state == 0  # nothing else below the goal
+    # and in a world of such stacks it gets there or runs into falls, never a loop
+    world = SkewedStacks(seed=3)
+    result = build_stack(world, skill, max_placements=12)
+    assert result.placements and all(p.choice.state > 0 for p in result.placements)
+
+
+class SkewedStacks(SkillWorld):
+    """Four blocks: two two-stacks whose tops offer actions 1 and 2 only, where a placement
+    stays with probability 0.5; any fall leaves a two-stack and two singles."""
+
+    def __init__(self, seed: int) -> None:
+        self.stacks, self.rng = [2, 2], random.Random(seed)
+
+    def offered(self):
+        return [(0, 1)] + [(h, a) for h in sorted(set(self.stacks)) if h > 0
+                           for a in ((1, 2) if h == 2 else range(1, N_ACTIONS + 1))]
+
+    def highest_stack(self) -> int:
+        return max(self.stacks)
+
+    def place(self, state: int, action: int) -> int:
+        if state == 0:
+            self.stacks = [2, 1, 1]
+            return 1
+        if state == 2 and self.rng.random() < 0.5:
+            self.stacks = [3, 1]
+            return 1
+        self.stacks = [2, 1, 1] if state == 2 else [2, 2]
+        return 1 if state == 1 else -1
+
+
 def test_nothing_offered_below_the_goal_gives_no_choice():
     skill = StackingSkill(LearnedModel.from_margins(GOOD), target_height=2)
     assert skill.choose([(2, 6), (3, 1)]) is None

@@ -95,11 +95,19 @@ class StackingSkill:
 
     def choose(self, offered: Iterable[tuple[int, int]]) -> SkillChoice | None:
         """The offered (height, action) pair with the highest planned value (ties: the higher
-        predicted success, then the higher stack); None when nothing offered is below the goal."""
+        predicted success, then the higher stack); None when nothing offered is below the goal.
+
+        The table is the last resort: a block put there starts a stack of one, which exists
+        already while a single block lies on the table (then a height-1 pair is offered), so
+        it is worth anything only when every block is in a stack, and then the block comes off
+        one of them. The MDP values it as a fresh start and not as undoing a stack; on the sim
+        that made the skill take two-stacks apart and build them again until its bound."""
+        offered = [(int(s), int(a)) for s, a in offered
+                   if 0 <= s < self.target and 1 <= a <= self.model.n_actions]
+        if any(s > 0 and np.isfinite(self.q[s, a - 1]) for s, a in offered):
+            offered = [(s, a) for s, a in offered if s > 0]
         best: SkillChoice | None = None
         for state, action in offered:
-            if not 0 <= state < self.target or not 1 <= action <= self.model.n_actions:
-                continue
             value = float(self.q[state, action - 1])
             if not np.isfinite(value):
                 continue
