@@ -226,7 +226,7 @@ class RobotEnvironment:
             _stamp_ns(self._blocks) >= after or self._blocks_count > count + 3),
             self.config.blocks_timeout_s, f"{BLOCKS_TOPIC} after the last experiment")
 
-    def mark_experiment_done(self) -> None:
+    def mark_scene_changed(self) -> None:
         self._count_at_done = self.blocks_count()
         self._done_ns = self.node.get_clock().now().nanoseconds
 

@@ -108,7 +108,7 @@ class GraphSkillWorld(SkillWorld):
                 raise
             return 0
         finally:
-            self.env.mark_experiment_done()
+            self.env.mark_scene_changed()
         return int(outcome.label)
 
     def highest_stack(self) -> int:

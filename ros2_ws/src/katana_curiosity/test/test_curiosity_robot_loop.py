@@ -43,14 +43,16 @@ class ScriptedArm:
         self.away_after = away_after
         self.table_only = table_only
         self.stop_on_attempt: tuple[int, threading.Event] | None = None
+        self.calls: list[str] = []
 
     def wait_until_current(self) -> None:
-        pass
+        self.calls.append("wait")
 
-    def mark_experiment_done(self) -> None:
-        pass
+    def mark_scene_changed(self) -> None:
+        self.calls.append("mark")
 
     def observe(self) -> Setting:
+        self.calls.append("observe")
         self.attempt += 1
         if self.stop_on_attempt and self.attempt == self.stop_on_attempt[0]:
             self.stop_on_attempt[1].set()
@@ -72,6 +74,7 @@ class ScriptedArm:
         return ["b3"] if self.away_after is not None and self.attempt >= self.away_after else []
 
     def reset(self) -> str:
+        self.calls.append("reset")
         self.resets += 1
         self.away_after = None
         return "scattered"
@@ -114,6 +117,10 @@ def test_a_block_out_of_reach_or_a_table_only_scene_asks_for_a_reset(tmp_path) -
     loop, _ = make_loop(tmp_path / "b", arm, max_experiments=7, stuck_reset=3)
     loop.run()
     assert arm.resets == 2, "after experiments 3 and 6, each offering only the table"
+    # every reset is marked, so the next observation waits for a picture of the new scene
+    # (without the mark it took whatever the memory had folded in: thread timing)
+    calls = " ".join(arm.calls)
+    assert calls.count("reset") == 2 and calls.count("reset mark wait observe") == 2, calls
 
 
 def test_the_log_replays_to_the_learner_and_resumes(tmp_path) -> None:
@@ -194,7 +201,7 @@ class SettingUntilReset:
     def wait_until_current(self) -> None:
         pass
 
-    def mark_experiment_done(self) -> None:
+    def mark_scene_changed(self) -> None:
         pass
 
     def observe(self) -> Setting:

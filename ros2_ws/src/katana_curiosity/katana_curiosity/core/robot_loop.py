@@ -158,8 +158,9 @@ class RobotEnvironment(Environment, Protocol):
         """Block until the environment's picture of the scene includes the last experiment."""
         ...
 
-    def mark_experiment_done(self) -> None:
-        """Note that an experiment was just published (its effect is awaited next time)."""
+    def mark_scene_changed(self) -> None:
+        """Note that an experiment was just published or the world reset: the next
+        wait_until_current awaits a picture of the scene taken after it."""
         ...
 
     def blocks_out_of_reach(self) -> list[str]: ...
@@ -262,7 +263,7 @@ class RobotLoop:
         self.done_this_session += 1
         self._setting_changes = 0
         self.dropped.clear()
-        self.environment.mark_experiment_done()
+        self.environment.mark_scene_changed()
         self.on_experiment(record, step)
         # A scene that offers nothing but the table (a stack whose top is beyond reach and
         # one loose block) cannot teach anything: have it reset, as a person would.
@@ -303,6 +304,9 @@ class RobotLoop:
         reason = f"blocks out of reach: {', '.join(away)}" if away else why
         try:
             message = self.environment.reset()
+            # the next observation must be of the new scene, not of whatever the memory had
+            # folded in when the reset returned (that depended on thread timing)
+            self.environment.mark_scene_changed()
             self.resets += 1
             self.logger.info(f"reset the world ({reason}): {message}")
         except (TimeoutError, ExperimentAborted) as exc:
