@@ -61,8 +61,8 @@ def _state_rates(host: str, port: int) -> dict:
     probe.create_subscription(
         JointState, "joint_states",
         lambda m: got.append((to_seconds(m.header.stamp), time.monotonic())), 100)
+    from katana_common.action_client import ActionClient
     from katana_interfaces.action import FollowJointTrajectory
-    from rclpy.action import ActionClient
 
     arm = ActionClient(probe, FollowJointTrajectory, "arm_controller/follow_joint_trajectory")
     executor = MultiThreadedExecutor(num_threads=4, context=ctx)
@@ -110,7 +110,7 @@ def _shutdown_times() -> dict:
     env = private_ros_env(PYTHONUNBUFFERED="1")
     goal = ("import rclpy\nfrom katana_driver.testing import POSE_B, trajectory\n"
             "from katana_interfaces.action import FollowJointTrajectory as F\n"
-            "from rclpy.action import ActionClient\nrclpy.init()\n"
+            "from katana_common.action_client import ActionClient\nrclpy.init()\n"
             "n = rclpy.create_node('bench_goal')\n"
             "c = ActionClient(n, F, 'arm_controller/follow_joint_trajectory')\n"
             "c.wait_for_server(timeout_sec=20.0)\nc.send_goal_async(trajectory(POSE_B, 20.0))\n"

@@ -66,11 +66,11 @@ def bench_pick_place(runs: int = 5) -> tuple[float, float, int]:
     pick_place_executor in one process, the fast lock-step sim), its sim/wall speed, and how many
     succeeded."""
     from katana_bringup.testing import InProcessGraph
+    from katana_common.action_client import ActionClient
     from katana_interfaces.action import PickAndPlace
     from katana_manipulation.core.pick_place import PickPlacePlanner, PickPlaceRequest, PlanError
     from katana_manipulation.pick_place_executor import PickPlaceExecutor
     from katana_sim.sim_node import SimNode
-    from rclpy.action import ActionClient
     from rclpy.parameter import Parameter
 
     planner = PickPlacePlanner()

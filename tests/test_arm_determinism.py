@@ -11,10 +11,10 @@ import time
 
 from geometry_msgs.msg import Pose
 from katana_bringup.testing import InProcessGraph
+from katana_common.action_client import ActionClient
 from katana_interfaces.action import PickAndPlace
 from katana_manipulation.pick_place_executor import PickPlaceExecutor
 from katana_sim.sim_node import SimNode
-from rclpy.action import ActionClient
 from rclpy.parameter import Parameter
 
 

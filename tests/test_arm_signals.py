@@ -12,11 +12,11 @@ import time
 import pytest
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Pose
+from katana_common.action_client import ActionClient
 from katana_common.testing import probe_node, use_private_domain
 from katana_description import models as m
 from katana_interfaces.action import FollowJointTrajectory, PickAndPlace
 from rcl_interfaces.srv import GetParameters
-from rclpy.action import ActionClient
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 pytestmark = pytest.mark.timeout(300)

@@ -8,11 +8,11 @@ import json
 
 import numpy as np
 from katana_bringup.run import build_nodes, default_params_files, load_params
+from katana_common.action_client import ActionClient
 from katana_common.qos import SENSOR_QOS, STATE_QOS
 from katana_interfaces.action import PickAndPlace
 from katana_interfaces.msg import Experience, LearnerState
 from katana_interfaces.srv import FindPlacement
-from rclpy.action import ActionClient
 from sensor_msgs.msg import Image
 
 

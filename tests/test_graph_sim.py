@@ -7,11 +7,12 @@ from __future__ import annotations
 import math
 
 from katana_bringup.run import build_nodes, default_params_files, load_params
+from katana_common.action_client import ActionClient
 from katana_common.conversions import to_seconds
 from katana_common.qos import CLOCK_QOS
 from katana_interfaces.action import PickAndPlace
 from katana_interfaces.msg import BlockArray
-from rclpy.action import ActionClient, get_action_names_and_types
+from rclpy.action import get_action_names_and_types
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from rosgraph_msgs.msg import Clock
 

@@ -75,11 +75,11 @@ class GraphClient:
     """Bounded calls into a running graph: reset, ground truth, memory, fovea, pick-and-place."""
 
     def __init__(self, node, stop: threading.Event | None = None) -> None:
+        from katana_common.action_client import ActionClient
         from katana_common.qos import STATE_QOS
         from katana_interfaces.action import PickAndPlace
         from katana_interfaces.msg import BlockArray
         from katana_interfaces.srv import FindPlacement, ResetWorld
-        from rclpy.action import ActionClient
 
         self.node = node
         self.stop = stop or threading.Event()
@@ -704,9 +704,9 @@ def cmd_paper(args) -> int:
 def skill_trials(model: str, goal_height: int, trials: int, seed: int, max_placements: int,
                  log=print) -> dict:
     """`trials` build_stack goals, each from the scatter reset_world(seed + k) makes."""
+    from katana_common.action_client import ActionClient
     from katana_curiosity.skill_node import SkillNode
     from katana_interfaces.action import BuildStack
-    from rclpy.action import ActionClient
     from rclpy.parameter import Parameter
 
     from .run import build_nodes, overrides_for

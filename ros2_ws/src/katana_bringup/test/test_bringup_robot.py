@@ -68,11 +68,11 @@ def test_skill_node_chooses_what_the_plan_says_in_a_two_stack_setting(tmp_path):
     iteration in test_curiosity_skill) among what the fovea offers: with a model that
     predicts action 6 holds on two it builds on the two-stack, (2, 6). (The paper's tricky
     situation, a skewed two-stack, is tested with constructed models in test_curiosity_skill.)"""
+    from katana_common.action_client import ActionClient
     from katana_curiosity.core.skill import LearnedModel, StackingSkill
     from katana_curiosity.skill_node import SkillNode, load_model
     from katana_interfaces.action import BuildStack
     from katana_interfaces.srv import ObserveSetting
-    from rclpy.action import ActionClient
     from rclpy.parameter import Parameter
 
     g, client = _graph(seed=5)

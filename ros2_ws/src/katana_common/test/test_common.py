@@ -273,3 +273,64 @@ def test_wait_for_future_returns_times_out_and_stops():
     with pytest.raises(Stopped):
         wait_for_future(Future(), 30.0, "stopped", stop=stop)
     assert time.monotonic() - start < 30.0
+
+
+class _SlowToRegister:
+    """A client handle that pauses after sending a request, before the client registers the
+    request's future: the executor's thread takes and executes the response meanwhile."""
+
+    def __init__(self, handle, pause_s: float) -> None:
+        self._handle, self._pause_s = handle, pause_s
+
+    def __getattr__(self, name):
+        attr = getattr(self._handle, name)
+        if name.startswith("send_"):
+            def sent(*args, **kwargs):
+                out = attr(*args, **kwargs)
+                time.sleep(self._pause_s)
+                return out
+            return sent
+        return attr
+
+
+def test_the_action_client_completes_a_goal_answered_before_its_future_is_registered():
+    """rclpy#1123: with rclpy's ActionClient such a response is ignored and the future never
+    completes; katana_common's client holds the executor back until the future is known."""
+    from katana_common.action_client import ActionClient
+    from katana_interfaces.action import GripperCommand
+    from rclpy.action import ActionServer
+    from rclpy.executors import MultiThreadedExecutor
+
+    def execute(goal_handle):
+        goal_handle.succeed()
+        return GripperCommand.Result(position=goal_handle.request.command.position)
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    server_node = Node("race_server", context=ctx)
+    client_node = Node("race_client", context=ctx)
+    server = ActionServer(server_node, GripperCommand, "grip", execute)
+    client = ActionClient(client_node, GripperCommand, "grip")
+    executor = MultiThreadedExecutor(num_threads=2, context=ctx)
+    executor.add_node(server_node)
+    executor.add_node(client_node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        assert client.wait_for_server(timeout_sec=10.0)
+        client._client_handle = _SlowToRegister(client._client_handle, 0.3)
+        for position in (0.1, 0.2):
+            goal = GripperCommand.Goal()
+            goal.command.position = position
+            sent = client.send_goal_async(goal)
+            handle = wait_for_future(sent, 10.0, "goal response")
+            assert handle.accepted
+            result = wait_for_future(handle.get_result_async(), 10.0, "result")
+            assert result.result.position == position
+    finally:
+        executor.shutdown(timeout_sec=5)
+        server.destroy()
+        client.destroy()
+        server_node.destroy_node()
+        client_node.destroy_node()
+        rclpy.try_shutdown(context=ctx)

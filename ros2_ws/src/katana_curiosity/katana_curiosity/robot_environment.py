@@ -14,13 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 from action_msgs.msg import GoalStatus
+from katana_common.action_client import ActionClient
 from katana_common.futures import Stopped, wait_for_future
 from katana_common.qos import JOINT_STATE_QOS, STATE_QOS
 from katana_description.models import stands_upright
 from katana_interfaces.action import PickAndPlace
 from katana_interfaces.msg import BlockArray, FoveaInstance
 from katana_interfaces.srv import FindPlacement, JudgePlacement, ObserveSetting, ResetWorld
-from rclpy.action import ActionClient
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool

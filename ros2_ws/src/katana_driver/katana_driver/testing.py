@@ -16,9 +16,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import rclpy
+from katana_common.action_client import ActionClient
 from katana_common.conversions import duration_msg
 from katana_interfaces.action import FollowJointTrajectory
-from rclpy.action import ActionClient
 from rclpy.action.client import GoalStatus
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor

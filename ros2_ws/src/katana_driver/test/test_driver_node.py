@@ -9,6 +9,7 @@ import rclpy
 from builtin_interfaces.msg import Duration
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from katana_common.action_client import ActionClient
 from katana_common.conversions import duration_msg
 from katana_common.params import ParameterError
 from katana_driver.core import protocol as p
@@ -17,7 +18,6 @@ from katana_driver.katana_driver_node import KatanaDriverNode
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.msg import JointTolerance
 from katana_interfaces.srv import ResetWorld, SetMotors
-from rclpy.action import ActionClient
 from rclpy.action.client import GoalStatus
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor

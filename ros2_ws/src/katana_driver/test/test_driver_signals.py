@@ -107,7 +107,7 @@ _SEND_GOAL = """
 import rclpy
 from builtin_interfaces.msg import Duration
 from katana_interfaces.action import FollowJointTrajectory
-from rclpy.action import ActionClient
+from katana_common.action_client import ActionClient
 from trajectory_msgs.msg import JointTrajectoryPoint
 rclpy.init()
 node = rclpy.create_node("signal_test_goal_sender")

@@ -19,13 +19,14 @@ import math
 import sys
 import threading
 
+from katana_common.action_client import ActionClient
 from katana_common.futures import Stopped
 from katana_common.node_runner import run_node
 from katana_common.params import Param, declare_parameters
 from katana_common.qos import JOINT_STATE_QOS
 from katana_description import models as m
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand, PickAndPlace
-from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node

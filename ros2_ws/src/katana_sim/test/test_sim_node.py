@@ -11,6 +11,7 @@ import pytest
 import rclpy
 from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
+from katana_common.action_client import ActionClient
 from katana_common.qos import JOINT_STATE_QOS, SENSOR_QOS, STATE_QOS
 from katana_description import models as m
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand
@@ -18,7 +19,6 @@ from katana_interfaces.msg import BlockArray
 from katana_interfaces.srv import ResetWorld
 from katana_sim.sim_node import SimNode
 from rcl_interfaces.srv import SetParameters
-from rclpy.action import ActionClient
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
