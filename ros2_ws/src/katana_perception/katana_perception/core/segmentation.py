@@ -106,7 +106,7 @@ class Segmenter:
         # over the reach, upright blocks scored >= -0.003 (upright minus side), blocks on
         # their side <= -0.08.
         self.side_margin = float(side_margin)
-        self._resting: dict[tuple, tuple] = {}  # blob key -> (size, centre), last image only
+        self._resting: dict[tuple, tuple] = {}  # blob -> (calibration, size, centre), last image
         self._resting_now: dict[tuple, tuple] = {}
         lut = np.zeros(256, dtype=np.uint8)
         for i, c in enumerate(self.table):
@@ -334,7 +334,7 @@ def _fit_box(calib: Calibration, sub: np.ndarray, origin, blob_uv: np.ndarray, t
     offset = np.array([origin[0] - pad, origin[1] - pad], dtype=np.float64)
     box = np.zeros((h + 2 * pad, w + 2 * pad), np.uint8)
 
-    def draw() -> float:
+    def draw() -> dict:  # the silhouette's image moments
         uv = calib.project(box_corners(x, y, z_bottom, yaw, size))
         box[:] = 0
         cv2.fillConvexPoly(box, cv2.convexHull(np.rint((uv - offset) * 16).astype(np.int32)),
