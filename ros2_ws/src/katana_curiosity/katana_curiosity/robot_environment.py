@@ -29,14 +29,13 @@ from .core.block_choice import BlockView, PickReach, choose_block_to_move
 from .core.environment import Outcome, Setting
 from .core.robot_loop import (
     GIVE_UP,
-    POLICY_RESULTS,
-    TRY_ANOTHER,
     UNREALISABLE,
     ExecutionRecord,
     ExperimentAborted,
     Stopping,
     Unrealisable,
     after_failed_pick_place,
+    leave_until_moved,
 )
 from .core.run_record import InstanceRecord
 
@@ -342,8 +341,7 @@ class RobotEnvironment:
             action = after_failed_pick_place(name, attempts, self.config.grasp_retries)
             if action == UNREALISABLE:
                 raise Unrealisable(name, reason)
-            if action in (TRY_ANOTHER, GIVE_UP) and name in POLICY_RESULTS:
-                # a block the arm cannot pick, or keeps missing, is left until it moves
+            if leave_until_moved(name, action):
                 self.unpickable[block.id] = (block.pose.position.x, block.pose.position.y)
                 excluded.add(block.id)
             if action == GIVE_UP:

@@ -285,3 +285,14 @@ def test_the_feasibility_table_leaves_out_what_the_fovea_cannot_offer() -> None:
     assert feasible[1].tolist() == [True, True, True, True, False, True]
     assert feasible[2:].all()
     assert feasible_actions(3, 4, 1)[1].all()  # another fovea: no such geometry assumed
+
+
+def test_blocks_the_arm_cannot_take_are_left_until_they_move() -> None:
+    from katana_curiosity.core.robot_loop import after_failed_pick_place, leave_until_moved
+
+    for name in ("grasp_missed", "block_slipped", "pick_unreachable"):
+        action = after_failed_pick_place(name, attempts=3, retries=2)  # retries used up
+        assert leave_until_moved(name, action), name
+    assert not leave_until_moved("grasp_missed", after_failed_pick_place("grasp_missed", 1, 2))
+    for name in ("place_unreachable", "arm_did_not_reach", "collision"):  # not the block's fault
+        assert not leave_until_moved(name, after_failed_pick_place(name, 1, 2)), name

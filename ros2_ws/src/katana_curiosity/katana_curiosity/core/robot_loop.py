@@ -127,6 +127,14 @@ RETRY_SAME, TRY_ANOTHER, GIVE_UP, UNREALISABLE = "retry", "another", "give_up", 
 POLICY_RESULTS = ("grasp_missed", "pick_unreachable", "place_unreachable")
 
 
+def leave_until_moved(result: str, action: str) -> bool:
+    """Whether a block whose pick-and-place failed so is left alone until it moves: one the arm
+    cannot reach or keeps missing, and one that slipped out of the fingers and still lies
+    where it was (a block leaning on another slips again: on the sim the loop picked such a
+    block three times in a row, then asked for a reset)."""
+    return action in (TRY_ANOTHER, GIVE_UP) and result in (*POLICY_RESULTS, "block_slipped")
+
+
 def after_failed_pick_place(result: str, attempts: int, retries: int) -> str:
     """The retry policy: a missed grasp is tried again (the paper's robot did), an unreachable
     pick tries another block, an unreachable place cannot be realised (a planner then tries
