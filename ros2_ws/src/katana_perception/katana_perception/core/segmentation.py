@@ -283,10 +283,14 @@ class Segmenter:
 
     @staticmethod
     def _sample(labels: np.ndarray, pts: np.ndarray) -> np.ndarray:
-        """Labels at points; 255 marks points outside the image."""
+        """Labels at points; 255 marks points outside the image (or not finite: a calibration
+        that sends the top face nowhere)."""
         h, w = labels.shape
-        iu = np.rint(pts[:, 0]).astype(int)
-        iv = np.rint(pts[:, 1]).astype(int)
+        finite = np.isfinite(pts).all(axis=1)
+        iu = np.full(len(pts), -1)
+        iv = np.full(len(pts), -1)
+        iu[finite] = np.rint(pts[finite, 0]).astype(int)
+        iv[finite] = np.rint(pts[finite, 1]).astype(int)
         inside = (iu >= 0) & (iu < w) & (iv >= 0) & (iv < h)
         out = np.full(len(pts), 255, dtype=np.int32)
         out[inside] = labels[iv[inside], iu[inside]]
