@@ -283,10 +283,10 @@ class Segmenter:
 
     @staticmethod
     def _sample(labels: np.ndarray, pts: np.ndarray) -> np.ndarray:
-        """Labels at points; 255 marks points outside the image (or not finite: a calibration
-        that sends the top face nowhere)."""
+        """Labels at points; 255 marks points outside the image (or not finite, or beyond
+        any int: a degenerate calibration sends the top face nowhere)."""
         h, w = labels.shape
-        finite = np.isfinite(pts).all(axis=1)
+        finite = (np.abs(pts) < 1e9).all(axis=1)  # False for NaN too
         iu = np.full(len(pts), -1)
         iv = np.full(len(pts), -1)
         iu[finite] = np.rint(pts[finite, 0]).astype(int)
