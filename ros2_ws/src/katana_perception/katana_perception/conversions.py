@@ -15,7 +15,7 @@ from std_msgs.msg import Header
 from .core.calibration import Calibration, load_extrinsics_yaml
 from .core.fovea import Instance
 from .core.judge import Placement
-from .core.memory import Block, Seen, footprint_overlap
+from .core.memory import Block, Seen, footprint_overlap, top_height
 from .core.segmentation import Detection, wrap_quarter
 
 _CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4}
@@ -122,11 +122,11 @@ def _size(size: Sequence[float]) -> Vector3:
     return Vector3(x=float(size[0]), y=float(size[1]), z=float(size[2]))
 
 
-def detection_to_msg(d: Detection, calib: Calibration, block_size: Sequence[float]) -> BlockMsg:
+def detection_to_msg(d: Detection, calib: Calibration) -> BlockMsg:
     """A visible block, located at the level it was segmented with (1 unless memory knew),
     with its resting size: x along the reported yaw, z vertical (a block on its side is
     taller than a level)."""
-    z_top = (d.level - 1) * block_size[2] + d.size[2]
+    z_top = top_height(d.level, d.size)
     x, y = (float(a) for a in calib.pixel_to_world(d.u, d.v, z_top))
     edge_yaw = calib.image_angle_to_yaw(d.u, d.v, d.angle, z_top)
     yaw = wrap_quarter(edge_yaw)

@@ -158,7 +158,7 @@ class PerceptionNode(Node):
             self._segmented = (self.calibration, dict(self.levels), dets)
         header = Header(stamp=msg.header.stamp, frame_id=self.world_frame)
         out = BlockArray(header=header,
-                         blocks=[detection_to_msg(d, self.calibration, self.block_size)
+                         blocks=[detection_to_msg(d, self.calibration)
                                  for d in dets])
         self.pub_detections.publish(out)
         if self.publish_debug and self.pub_debug.get_subscription_count() > 0:

@@ -283,7 +283,7 @@ def test_a_block_that_fell_onto_its_side_is_remembered_so_and_offers_no_placemen
     def look(scene):  # as perception and block_memory see it: through perception/detections
         seg = Segmenter()
         dets = seg.segment(Renderer(CALIB).render(scene, seed=1)[0], CALIB, memory.levels())
-        return memory.update([seen_from_msg(detection_to_msg(d, CALIB, seg.block_size))
+        return memory.update([seen_from_msg(detection_to_msg(d, CALIB))
                               for d in dets])
 
     memory = BlockMemory(CALIB)

@@ -208,7 +208,7 @@ def detections_msg(scene, levels=None):
     rgb, _ = Renderer(CALIB).render(scene)
     dets = Segmenter().segment(rgb, CALIB, levels)
     return BlockArray(header=Header(frame_id="world"),
-                      blocks=[detection_to_msg(d, CALIB, (0.04, 0.04, 0.03)) for d in dets])
+                      blocks=[detection_to_msg(d, CALIB) for d in dets])
 
 
 def test_block_memory_node(ros):

@@ -101,7 +101,7 @@ def test_a_block_on_its_side_is_told_from_an_upright_one_against_the_sim(
     assume("red" in dets and dets["red"].complete and truth.visible)
     d = dets["red"]
     assert stands_upright(d.size) == (not truth.tilted), (d.size, pose)
-    msg = detection_to_msg(d, calib, seg.block_size)
+    msg = detection_to_msg(d, calib)
     reported = Block("red", "red", msg.pose.position.x, msg.pose.position.y, msg.yaw,
                      size=(msg.size.x, msg.size.y, msg.size.z))
     # the true footprint: the box's horizontal extents in the world, from its rotation
