@@ -258,8 +258,8 @@ class TruthMeasurer:
                 return False
         return bool(self._free_blocks(self.stack))
 
-    def _build(self, height: int) -> None:
-        """Reset and stack `height` blocks squarely at STACK_XY (the first moved there)."""
+    def _build(self, height: int, at_xy: tuple[float, float] = STACK_XY) -> None:
+        """Reset and stack `height` blocks squarely at `at_xy` (the first moved there)."""
         from geometry_msgs.msg import Pose
 
         for _attempt in range(10):
@@ -274,10 +274,10 @@ class TruthMeasurer:
                     ok = False
                     break
                 # the block nearest the stack's spot, so the rest stay out of the way
-                block = min(free, key=lambda b: math.hypot(b.pose.position.x - STACK_XY[0],
-                                                           b.pose.position.y - STACK_XY[1]))
+                block = min(free, key=lambda b: math.hypot(b.pose.position.x - at_xy[0],
+                                                           b.pose.position.y - at_xy[1]))
                 pose = Pose()
-                pose.position.x, pose.position.y = STACK_XY
+                pose.position.x, pose.position.y = at_xy
                 pose.position.z = (level - 0.5) * self.block_h
                 pose.orientation.w = 1.0
                 result = self.client.pick_and_place(block, pose)

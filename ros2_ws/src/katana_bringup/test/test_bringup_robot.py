@@ -16,9 +16,12 @@ from katana_curiosity.core.robot_truth import TruthTable
 from katana_curiosity.core.run_record import CHECKPOINT_NAME, save_checkpoint
 
 
-def _graph(seed: int) -> tuple[InProcessGraph, robot.GraphClient]:
+def _graph(seed: int, num_blocks: int | None = None) -> tuple[InProcessGraph, robot.GraphClient]:
+    params = robot.graph_params(seed)
+    if num_blocks is not None:
+        params["sim_node"]["num_blocks"] = num_blocks
     g = InProcessGraph()
-    g.add(*build_nodes("sim", robot.graph_params(seed), g.context,
+    g.add(*build_nodes("sim", params, g.context,
                        layers=("arm", "perception")))
     client = robot.GraphClient(g.node("test_client"))
     client.wait_ready()
@@ -67,7 +70,8 @@ def test_skill_node_chooses_what_the_plan_says_in_a_two_stack_setting(tmp_path):
     observes the setting and makes the choice of the plan (core.skill, checked against value
     iteration in test_curiosity_skill) among what the fovea offers: with a model that
     predicts action 6 holds on two it builds on the two-stack, (2, 6). (The paper's tricky
-    situation, a skewed two-stack, is tested with constructed models in test_curiosity_skill.)"""
+    situation: with constructed models in test_curiosity_skill, and on the sim at the edge of
+    the reach, below.)"""
     from katana_common.action_client import ActionClient
     from katana_curiosity.core.skill import LearnedModel, StackingSkill
     from katana_curiosity.skill_node import SkillNode, load_model
@@ -122,6 +126,61 @@ def test_skill_node_chooses_what_the_plan_says_in_a_two_stack_setting(tmp_path):
         g.close()
     assert choices == expected
     assert choices[True] == (2, 6)  # a good model on a square two-stack: build on it
+
+
+#: a stack of two here, at the edge of the arm's reach, takes a third block only on its near
+#: edge: placements on a two-stack reach 0.250 m from the pan axis (katana_manipulation's
+#: place_reach_table), and this stack's top face begins at 0.248 m
+EDGE_OF_REACH_XY = (0.268, 0.0)
+
+
+def test_the_tricky_situation_on_the_sim_starts_again_from_height_one(tmp_path):
+    """Figure 14 on the sim: a stack of two built at the edge of the reach, so its top offers
+    only placements on its near edge (no action 6), and three single blocks (five in all: the
+    two-stack's top is beyond the pick reach of its level, so it is no block to move). The
+    model predicts that a block on the two-stack falls unless all five points are on it, so
+    the skill starts again from height 1: (1, 6) on a single block, then (2, 6) on the new
+    two-stack, and the sim's ground truth has a stack of three."""
+    from katana_common.action_client import ActionClient
+    from katana_curiosity.core.skill import LearnedModel, StackingSkill
+    from katana_curiosity.skill_node import SkillNode, load_model
+    from katana_interfaces.action import BuildStack
+    from katana_interfaces.srv import ObserveSetting
+    from rclpy.parameter import Parameter
+
+    g, client = _graph(seed=5, num_blocks=5)
+    observe = client.node.create_client(ObserveSetting, "fovea/observe")
+    try:
+        measurer = robot.TruthMeasurer(client, seed=5, max_height=3, block_height_m=0.03)
+        measurer._build(2, at_xy=EDGE_OF_REACH_XY)
+        offered = sorted({(i.state, i.action) for i in client.call(
+            observe, ObserveSetting.Request(max_state=3)).instances})
+        on_two = {a for s, a in offered if s == 2}
+        assert on_two and 6 not in on_two and (1, 6) in offered, offered
+        folder = _model(tmp_path, good_on_two=True)
+        plan = StackingSkill(LearnedModel(load_model(str(folder), 3, 6).margin, np.arange(5)),
+                             target_height=3)
+        best = plan.choose(offered)
+        assert (best.state, best.action) == (1, 6)  # the plan itself starts again
+        assert best.predicted_success > max(plan.success[2, a - 1] for a in on_two)
+        node = SkillNode(context=g.context, parameter_overrides=[
+            Parameter("model", value=str(folder))])
+        g.add(node)
+        action = ActionClient(g.node("skill_client"), BuildStack, "build_stack")
+        assert action.wait_for_server(timeout_sec=30.0)
+        feedback = []
+        handle = g.result(action.send_goal_async(
+            BuildStack.Goal(target_height=3, max_placements=3),
+            feedback_callback=lambda f: feedback.append(f.feedback)))
+        result = g.result(handle.get_result_async(), 300.0).result
+        truth_height = max(b.level for b in robot.true_blocks(client.truth))
+    finally:
+        g.close()
+    steps = [(f.state, f.action, f.observed_label) for f in feedback]
+    assert steps[0][:2] == (1, 6), steps
+    assert result.success and result.height_reached == 3, (result.reason, steps)
+    assert steps == [(1, 6, 1), (2, 6, 1)]
+    assert truth_height == 3
 
 
 def test_paper_with_two_seeds_writes_every_file(tmp_path):
