@@ -22,7 +22,7 @@ from katana_common.node_runner import run_node
 from katana_common.params import Param, ParameterError, declare_parameters
 from katana_common.scene import SCENE_PARAMS
 from katana_interfaces.action import BuildStack
-from katana_manipulation.core.reach import pick_reach
+from katana_manipulation.core.reach import pick_reach, place_reach_table
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
@@ -31,7 +31,14 @@ from rclpy.node import Node
 from .core.block_choice import PickReach
 from .core.robot_loop import ExperimentAborted, Stopping, Unrealisable
 from .core.run_record import CHECKPOINT_NAME, load_checkpoint
-from .core.skill import LearnedModel, SkillOutcome, SkillWorld, StackingSkill, build_stack
+from .core.skill import (
+    LearnedModel,
+    SkillOutcome,
+    SkillWorld,
+    StackingSkill,
+    build_stack,
+    choose_base,
+)
 from .robot_environment import EnvironmentConfig, RobotEnvironment
 
 PARAMS = (
@@ -78,8 +85,10 @@ class GraphSkillWorld(SkillWorld):
     """core.skill's world over RobotEnvironment: settings from the fovea, placements through
     pick_and_place and the judge, the highest stack from memory/blocks."""
 
-    def __init__(self, env: RobotEnvironment, canceled) -> None:
+    def __init__(self, env: RobotEnvironment, canceled, target_height: int,
+                 place_reach_m: tuple[tuple[float, float], ...]) -> None:
         self.env, self.canceled = env, canceled
+        self.target_height, self.place_reach_m = target_height, place_reach_m
         self.setting = None
         self.not_made: list[str] = []  # why attempts placed nothing
 
@@ -97,8 +106,8 @@ class GraphSkillWorld(SkillWorld):
     def place(self, state: int, action: int) -> int:
         if self.canceled():
             raise _Canceled
-        # the observed instance (it has a block to move), not a new fovea search
-        index = self.setting.index_of(state, action - 1) if self.setting is not None else None
+        # an observed instance (it has a block to move), not a new fovea search
+        index = self._instance_index(state, action)
         try:
             outcome = self.env.execute(state, action - 1, index)
         except (ExperimentAborted, Unrealisable) as exc:
@@ -110,6 +119,18 @@ class GraphSkillWorld(SkillWorld):
         finally:
             self.env.mark_scene_changed()
         return int(outcome.label)
+
+    def _instance_index(self, state: int, action: int) -> int | None:
+        """Of the observed instances of (state, action), the one on the stack to build on."""
+        if self.setting is None:
+            return None
+        hits = np.flatnonzero((self.setting.states == state)
+                              & (self.setting.actions == action - 1))
+        if not len(hits):
+            return None
+        where = [(self.env.instances[i].placement.position.x,
+                  self.env.instances[i].placement.position.y) for i in hits]
+        return int(hits[choose_base(where, state, self.target_height, self.place_reach_m)])
 
     def highest_stack(self) -> int:
         blocks = self.env.wait_for_blocks()
@@ -137,6 +158,8 @@ class SkillNode(Node):
                 for level in range(1, p["max_height"] + 2)))),
             service_timeout_s=p["service_timeout_s"], action_timeout_s=p["action_timeout_s"],
             blocks_timeout_s=p["blocks_timeout_s"]), self._stop, callback_group=group)
+        self.place_reach_m = tuple((b.min_m, b.max_m) for b in place_reach_table(
+            p["max_height"], p["block_size"][2]))
         self._ready = False
         self.server = ActionServer(
             self, BuildStack, "build_stack", execute_callback=self._execute,
@@ -169,7 +192,8 @@ class SkillNode(Node):
         bound = goal.max_placements or self.params["max_placements"]
         skill = StackingSkill(self.model, int(goal.target_height), self.params["gamma"],
                               self.params["table_action"])
-        world = GraphSkillWorld(self.environment, lambda: handle.is_cancel_requested)
+        world = GraphSkillWorld(self.environment, lambda: handle.is_cancel_requested,
+                                int(goal.target_height), self.place_reach_m)
         try:
             if not self._ready:
                 self.environment.wait_until_ready(self.params["ready_timeout_s"])

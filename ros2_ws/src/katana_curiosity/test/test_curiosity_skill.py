@@ -12,7 +12,14 @@ from hypothesis import strategies as st
 from katana_curiosity.core.metrics import bernoulli_kl
 from katana_curiosity.core.planner import HeightMDP, value_iteration
 from katana_curiosity.core.robot_truth import TruthTable, kl_to_truth, wilson_interval
-from katana_curiosity.core.skill import LearnedModel, SkillWorld, StackingSkill, build_stack
+from katana_curiosity.core.skill import (
+    REACH_MARGIN_M,
+    LearnedModel,
+    SkillWorld,
+    StackingSkill,
+    build_stack,
+    choose_base,
+)
 
 N_ACTIONS = 6
 
@@ -214,3 +221,38 @@ def test_kl_to_truth_against_a_hand_computed_table():
     expected_h1 = (0.0 + 0.75 * math.log(1.5) + 0.25 * math.log(0.5)) / 2
     assert kl[1] == pytest.approx(expected_h1)
     assert kl[1] == pytest.approx(float(bernoulli_kl([0.5, 0.75], [0.5, 0.5]).mean()))
+
+
+# the sim's place reach per stack height, m (katana_manipulation's place_reach_table)
+PLACE_REACH_M = ((0.0953, 0.2992), (0.0341, 0.2798), (0.0319, 0.2503), (0.0669, 0.1983))
+
+
+def test_the_base_is_a_stack_the_arm_can_build_on():
+    """Seen on the sim (reset seed 100): (1, 3) was offered on a block 0.276 m out and on one
+    0.19 m out; the first in scan order made a two-stack whose top the fovea could reach only
+    at its near edge, and with four blocks the skill had none left to start again."""
+    far, near = (0.276, 0.031), (0.198, 0.031)
+    assert choose_base([far, near], state=1, target_height=3, place_reach_m=PLACE_REACH_M) == 1
+    # the placement that reaches the target: where it is does not matter
+    assert choose_base([far, near], state=2, target_height=3, place_reach_m=PLACE_REACH_M) == 0
+    # none within reach: the nearest to it (0.26 is 0.02 beyond, 0.29 is 0.05)
+    assert choose_base([(0.29, 0.0), (0.0, 0.26)], 1, 4, PLACE_REACH_M) == 1
+    with pytest.raises(ValueError):
+        choose_base([], 1, 3, PLACE_REACH_M)
+
+
+@given(st.lists(st.tuples(st.floats(-0.3, 0.3), st.floats(-0.3, 0.3)), min_size=1, max_size=6),
+       st.integers(0, 2))
+def test_the_base_lies_within_the_next_reach_whenever_one_does(xy, state):
+    """Against the geometry: if any candidate's block would sit (with the margin) within the
+    place reach of the height it makes, the chosen one does; the first such in order."""
+    chosen = choose_base(xy, state, 4, PLACE_REACH_M)
+    near, far = PLACE_REACH_M[state + 1]
+    inside = [i for i, (x, y) in enumerate(xy)
+              if near + REACH_MARGIN_M <= math.hypot(x, y) <= far - REACH_MARGIN_M]
+    if inside:
+        assert chosen == inside[0]
+    else:
+        radius = [math.hypot(x, y) for x, y in xy]
+        gap = [max(near + REACH_MARGIN_M - r, r - far + REACH_MARGIN_M) for r in radius]
+        assert gap[chosen] == pytest.approx(min(gap))

@@ -12,10 +12,16 @@ a block goes where the model predicts the best chance of reaching the goal soon.
 "tricky situation" (a stack of two that the model says will fall under another block, and single
 blocks) that is a single block: it starts again from height 1. After every outcome the setting is
 observed again and the choice made anew; the number of placements is bounded.
+
+The model knows heights, not places, so where to make a chosen pair is the skill's own choice:
+on a stack from which the arm can still build up (`choose_base`). On the sim, a two-stack
+built near the edge of the reach offered only placements on its near edge, and with four
+blocks the skill had none left to start again.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
@@ -119,6 +125,37 @@ class StackingSkill:
             ):
                 best = choice
         return best
+
+
+#: how far inside the place reach of the next height a new stack top should sit: a quarter of a
+#: block edge, ample for the placement error (p95 0.6 mm on the sim) and the fovea's grid step
+REACH_MARGIN_M = 0.01
+
+
+def choose_base(
+    placements_xy: Sequence[tuple[float, float]],
+    state: int,
+    target_height: int,
+    place_reach_m: Sequence[tuple[float, float]],
+    margin_m: float = REACH_MARGIN_M,
+) -> int:
+    """Which of several placements realising the same (state, action) to make: the first whose
+    block, once placed, lies within the place reach of the stack it makes (so the next block
+    can go squarely onto it), else the one nearest that reach; the first when this placement
+    reaches the target. `place_reach_m[h]` is the (near, far) radius from the pan axis of a
+    placement on a stack of height h (katana_manipulation.core.reach.place_reach_table)."""
+    if not placements_xy:
+        raise ValueError("no placements to choose from")
+    made = state + 1
+    if made >= target_height or made >= len(place_reach_m):
+        return 0
+    near, far = place_reach_m[made]
+
+    def outside_m(i: int) -> float:
+        radius = math.hypot(*placements_xy[i])
+        return max(near + margin_m - radius, radius - (far - margin_m), 0.0)
+
+    return min(range(len(placements_xy)), key=lambda i: (outside_m(i), i))
 
 
 @dataclass(frozen=True)
