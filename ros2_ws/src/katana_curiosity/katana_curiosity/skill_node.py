@@ -194,24 +194,16 @@ class SkillNode(Node):
                               self.params["table_action"])
         world = GraphSkillWorld(self.environment, lambda: handle.is_cancel_requested,
                                 int(goal.target_height), self.place_reach_m)
+        made: list[SkillOutcome] = []  # judged placements, also when the goal ends early
         try:
             if not self._ready:
                 self.environment.wait_until_ready(self.params["ready_timeout_s"])
                 self._ready = True
-            outcome = build_stack(world, skill, bound, partial(self._feedback, handle, [0]))
-        except _Canceled:
-            handle.canceled()
-            result.error_code, result.reason = _RESULT.CANCELED, "canceled"
-            return result
-        except Stopping as exc:
-            return self._end(handle, result, _RESULT.CANCELED, str(exc))
-        except (ExperimentAborted, Unrealisable, TimeoutError) as exc:
-            if self._ready:  # the memory has published: the height it says
-                try:
-                    result.height_reached = world.highest_stack()
-                except (TimeoutError, Stopping):
-                    pass
-            return self._end(handle, result, _RESULT.EXECUTION_FAILED, str(exc))
+            outcome = build_stack(world, skill, bound, partial(self._feedback, handle, made))
+        except (_Canceled, Stopping, ExperimentAborted, Unrealisable, TimeoutError) as exc:
+            result.placements = len(made)
+            result.falls = sum(1 for o in made if o.label < 0)
+            return self._ended_early(handle, result, world, exc)
         result.height_reached = int(outcome.height)
         result.placements = len(outcome.placements)
         result.falls = outcome.falls
@@ -225,6 +217,20 @@ class SkillNode(Node):
             f"{len(outcome.placements)} placements, {outcome.falls} falls")
         return result
 
+    def _ended_early(self, handle, result, world: GraphSkillWorld, exc: Exception):
+        if isinstance(exc, _Canceled):
+            handle.canceled()
+            result.error_code, result.reason = _RESULT.CANCELED, "canceled"
+            return result
+        if isinstance(exc, Stopping):
+            return self._end(handle, result, _RESULT.CANCELED, str(exc))
+        if self._ready:  # the memory has published: the height it says
+            try:
+                result.height_reached = world.highest_stack()
+            except (TimeoutError, Stopping):
+                pass
+        return self._end(handle, result, _RESULT.EXECUTION_FAILED, str(exc))
+
     @staticmethod
     def _end(handle, result, code: int, reason: str):
         result.success, result.error_code, result.reason = False, code, reason
@@ -232,11 +238,10 @@ class SkillNode(Node):
         return result
 
     @staticmethod
-    def _feedback(handle, count: list[int], outcome: SkillOutcome) -> None:
-        count[0] += 1
-        number = count[0]
+    def _feedback(handle, made: list[SkillOutcome], outcome: SkillOutcome) -> None:
+        made.append(outcome)
         handle.publish_feedback(BuildStack.Feedback(
-            placement=number, state=outcome.choice.state, action=outcome.choice.action,
+            placement=len(made), state=outcome.choice.state, action=outcome.choice.action,
             predicted_success=outcome.choice.predicted_success,
             planned_value=outcome.choice.value, observed_label=int(outcome.label),
             height_after=int(outcome.height_after)))

@@ -52,6 +52,22 @@ SIM_MOTOR_TORQUE: dict[str, float] = {
     "katana_l_finger_joint": 1.0,
 }
 
+#: N m s / rad of viscous damping per joint (the URDF's <dynamics damping>). Bullet applies it
+#: explicitly, which is stable only while damping * dt < 2 * I, I being the joint's inertia. At
+#: 0.05 like the arm's, the wrist (I about 9.2e-5 kg m^2) and each finger (4.6e-5) were beyond
+#: that at 240 Hz: a finger knocked by a falling block went into a lasting +-52 rad/s
+#: oscillation, and the arm never came to rest. 0.002 keeps damping * dt / I under 0.75 down
+#: to the sim's slowest physics rate (60 Hz); the motors' own control does the rest.
+JOINT_DAMPING: dict[str, float] = {
+    "katana_motor1_pan_joint": 0.05,
+    "katana_motor2_lift_joint": 0.05,
+    "katana_motor3_lift_joint": 0.05,
+    "katana_motor4_lift_joint": 0.05,
+    "katana_motor5_wrist_roll_joint": 0.002,
+    "katana_r_finger_joint": 0.002,
+    "katana_l_finger_joint": 0.002,
+}
+
 BASE_HEIGHT = 0.2015  # table (base link) to the motor 2 axis
 LINK2 = 0.19  # motor 2 -> motor 3
 LINK3 = 0.139  # motor 3 -> motor 4

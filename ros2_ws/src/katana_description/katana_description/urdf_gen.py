@@ -75,7 +75,8 @@ def _joint(name: str, parent: str, child: str, xyz, rpy, kind: str = "revolute")
         text += (
             '    <axis xyz="0 0 1"/>\n'
             f'    <limit lower="{lo}" upper="{hi}" effort="{m.SIM_MOTOR_TORQUE[name]}" '
-            f'velocity="{m.JOINT_MAX_SPEED[name]}"/>\n    <dynamics damping="0.05" friction="0"/>\n'
+            f'velocity="{m.JOINT_MAX_SPEED[name]}"/>\n'
+            f'    <dynamics damping="{m.JOINT_DAMPING[name]}" friction="0"/>\n'
         )
     return text + "  </joint>\n"
 

@@ -295,3 +295,33 @@ def test_the_sampled_trajectory_is_the_cubic_hermite_spline_through_the_goal(gap
     one_q, one_v = follower.sample(times[-1] / 3)
     assert np.allclose(one_q, spline(times[-1] / 3)) and np.allclose(one_v,
                                                                        spline(times[-1] / 3, 1))
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.lists(st.floats(-1.0, 1.0), min_size=len(m.ALL_JOINTS), max_size=len(m.ALL_JOINTS)))
+def test_joint_damping_is_stable_at_the_slowest_physics_rate(world, unit):
+    """Bullet applies a joint's damping c explicitly: a velocity is scaled by 1 - c dt / I each
+    step, which diverges once c dt / I > 2 (I the joint's own inertia, the mass matrix's
+    diagonal). Checked with PyBullet's mass matrix at poses across the joint ranges, at the
+    slowest rate the sim allows (60 Hz), against the damping the sim loaded."""
+    q = [lo + (hi - lo) * (u + 1.0) / 2.0
+         for u, (lo, hi) in zip(unit, (m.JOINT_LIMITS[n] for n in m.ALL_JOINTS), strict=True)]
+    inertia = np.diag(np.array(p.calculateMassMatrix(world.arm, q, physicsClientId=world._cid)))
+    damping = np.array([p.getJointInfo(world.arm, i, physicsClientId=world._cid)[6]
+                        for i in world._all_idx])
+    assert damping.min() > 0.0
+    assert np.all(damping * (1.0 / 60.0) / inertia < 1.0), dict(
+        zip(m.ALL_JOINTS, np.round(damping / 60.0 / inertia, 2), strict=True))
+
+
+def test_fingers_knocked_hard_come_back_to_rest(world):
+    """Seen in a skill trial: a falling block struck an open finger; with the damping of the
+    arm's joints (0.05) the fingers then swung +-52 rad/s every step for good, and every later
+    move failed as 'still moving'. Knocked at 60 rad/s, they settle within half a second."""
+    world.set_arm_positions(m.PARK_POSE, 0.2)
+    for i in world._finger_idx:
+        p.resetJointState(world.arm, i, 0.2, 60.0, physicsClientId=world._cid)
+    world.step(int(0.5 / world.dt))
+    pos, vel, _ = world.joint_state()
+    assert np.all(np.abs(vel) < 0.05), vel
+    np.testing.assert_allclose(pos[5:], 0.2, atol=0.01)
