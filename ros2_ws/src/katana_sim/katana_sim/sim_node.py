@@ -29,12 +29,11 @@ from rclpy.node import Node
 from katana_sim import messages as msgs
 from katana_sim.core import ConfigError, PhysicsSim, pacing
 from katana_sim.core import controllers as ctl
-from katana_sim.outputs import SimOutputs
+from katana_sim.outputs import FAST_WALL_CAP_S, SimOutputs
 from katana_sim.sim_params import PARAMS, cross_check, sim_config
 
 FAST_IMAGE_IDLE_S = 0.05  # fast mode: render once the arm has been idle this long (wall)
 FEEDBACK_PERIOD_S = 0.2  # simulated seconds between action feedback messages
-FAST_FEEDBACK_WALL_S = 0.1  # fast mode: and at most one per this many wall seconds (as outputs)
 
 
 class SimNode(Node):
@@ -130,7 +129,8 @@ class SimNode(Node):
                 wall = time.monotonic()
                 if self.fast and wall < next_feedback[1]:
                     return
-                next_feedback[:] = self.world.time + FEEDBACK_PERIOD_S, wall + FAST_FEEDBACK_WALL_S
+                next_feedback[:] = (self.world.time + FEEDBACK_PERIOD_S,
+                                    wall + FAST_WALL_CAP_S["feedback"])
                 try:
                     goal_handle.publish_feedback(feedback())
                 except Exception:  # the context went down under us (a signal)
