@@ -104,6 +104,7 @@ def spin_nodes(
     watchdog = threading.Timer(limit_s, _give_up, args=(prog, limit_s))
     watchdog.daemon = True
     watchdog.start()
+    give_up_at = time.monotonic() + limit_s
     for node in nodes:
         node_stop = getattr(node, "stop", None)
         if callable(node_stop):
@@ -112,7 +113,10 @@ def spin_nodes(
             except Exception as exc:  # keep stopping the others
                 print(f"{prog}: {node.get_name()}.stop(): {exc!r}", file=sys.stderr)
     executor.shutdown(timeout_sec=shutdown_timeout_s)
-    spinner.join(timeout=shutdown_timeout_s)
+    # Destroy the nodes only once the executor's thread has left spin(): destroyed under it, a
+    # node's handles raise InvalidHandle there, and the process exited 1 after a SIGTERM (seen
+    # under load, when shutdown took over shutdown_timeout_s). The watchdog bounds this wait.
+    spinner.join(timeout=max(shutdown_timeout_s, give_up_at - time.monotonic()))
     for node in nodes:
         node.destroy_node()
     rclpy.try_shutdown()

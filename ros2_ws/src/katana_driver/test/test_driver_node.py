@@ -72,7 +72,11 @@ class Graph:
         return predicate()
 
     def ready(self):
-        assert self.spin_until(lambda: self.driver.worker.ready and len(self.states) > 2)
+        # ready and every arm motor holding: calibration's last moves may still be running
+        # when the driver reports ready (seen in CI: motor 2 moving as a refused goal ended)
+        assert self.spin_until(lambda: self.driver.worker.ready and len(self.states) > 2
+                               and self.driver.worker.state.status[:5]
+                               == [p.STATUS_HOLDING] * 5)
         assert self.spin_until(self.arm.server_is_ready)
         assert self.spin_until(self.gripper.server_is_ready)
 
