@@ -124,8 +124,7 @@ class GraphSkillWorld(SkillWorld):
         """Of the observed instances of (state, action), the one on the stack to build on."""
         if self.setting is None:
             return None
-        hits = np.flatnonzero((self.setting.states == state)
-                              & (self.setting.actions == action - 1))
+        hits = self.setting.indices_of(state, action - 1)
         if not len(hits):
             return None
         where = [(self.env.instances[i].placement.position.x,

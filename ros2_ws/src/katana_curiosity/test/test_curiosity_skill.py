@@ -20,6 +20,7 @@ from katana_curiosity.core.skill import (
     build_stack,
     choose_base,
 )
+from katana_manipulation.core.reach import place_reach_table
 
 N_ACTIONS = 6
 
@@ -223,8 +224,8 @@ def test_kl_to_truth_against_a_hand_computed_table():
     assert kl[1] == pytest.approx(float(bernoulli_kl([0.5, 0.75], [0.5, 0.5]).mean()))
 
 
-# the sim's place reach per stack height, m (katana_manipulation's place_reach_table)
-PLACE_REACH_M = ((0.0953, 0.2992), (0.0341, 0.2798), (0.0319, 0.2503), (0.0669, 0.1983))
+# the sim's place reach per stack height, m, from the arm's kinematics (as skill_node takes it)
+PLACE_REACH_M = tuple((b.min_m, b.max_m) for b in place_reach_table(3, 0.03))
 
 
 def test_the_base_is_a_stack_the_arm_can_build_on():

@@ -51,9 +51,13 @@ class Setting:
         """The distinct actions this setting offers at `state`, ascending."""
         return np.unique(self.actions[self.states == state])
 
+    def indices_of(self, state: int, action: int) -> np.ndarray:
+        """Positions of every instance realising (state, action), in scan order."""
+        return np.flatnonzero((self.states == state) & (self.actions == action))
+
     def index_of(self, state: int, action: int) -> int | None:
         """Position of the first instance realising (state, action), or None."""
-        hits = np.flatnonzero((self.states == state) & (self.actions == action))
+        hits = self.indices_of(state, action)
         return int(hits[0]) if len(hits) else None
 
 
