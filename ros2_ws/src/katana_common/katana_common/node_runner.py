@@ -35,6 +35,8 @@ EXIT_INVALID_CONFIGURATION = 2
 
 #: longest wait for the nodes' threads after a stop request, s (a node ends within 2 s)
 SHUTDOWN_LIMIT_S = 1.8
+#: the executor thread checks for a stop between slices of this many seconds of waiting
+SPIN_SLICE_S = 0.05
 
 
 def run_node(
@@ -82,10 +84,16 @@ def spin_nodes(
     for node in nodes:
         executor.add_node(node)
     failures: list[BaseException] = []
+    leave = threading.Event()  # the spinner leaves its loop; only then is the executor shut down
 
     def spin() -> None:
+        # Not executor.spin(): rclpy's Executor.shutdown() destroys the guard condition that a
+        # spinning thread is putting in its wait set, so a shutdown under spin() raised
+        # InvalidHandle or "'NoneType' object has no attribute 'handle'" there (exit 1 after a
+        # clean stop, seen under load). spin_once in short slices ends the loop first.
         try:
-            executor.spin()
+            while not leave.is_set() and executor.context.ok():
+                executor.spin_once(timeout_sec=SPIN_SLICE_S)
         except ExternalShutdownException:
             pass
         except Exception as exc:  # a bug in a callback: stop everything, exit 1
@@ -112,11 +120,12 @@ def spin_nodes(
                 node_stop()
             except Exception as exc:  # keep stopping the others
                 print(f"{prog}: {node.get_name()}.stop(): {exc!r}", file=sys.stderr)
-    executor.shutdown(timeout_sec=shutdown_timeout_s)
-    # Destroy the nodes only once the executor's thread has left spin(): destroyed under it, a
-    # node's handles raise InvalidHandle there, and the process exited 1 after a SIGTERM (seen
-    # under load, when shutdown took over shutdown_timeout_s). The watchdog bounds this wait.
+    # The spinner first leaves its loop, then the executor shuts down, then the nodes go: in
+    # any other order a handle is destroyed under a thread that uses it. The watchdog bounds
+    # the wait.
+    leave.set()
     spinner.join(timeout=max(shutdown_timeout_s, give_up_at - time.monotonic()))
+    executor.shutdown(timeout_sec=shutdown_timeout_s)
     for node in nodes:
         node.destroy_node()
     rclpy.try_shutdown()
