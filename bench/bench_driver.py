@@ -43,8 +43,8 @@ def _state_rates(host: str, port: int) -> dict:
 
     import rclpy
     from katana_common.conversions import to_seconds
+    from katana_common.executor import MultiThreadedExecutor
     from katana_driver.testing import POSE_B, trajectory
-    from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
 

@@ -8,6 +8,7 @@ import rclpy
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Pose, Vector3
 from katana_common.action_client import ActionClient
+from katana_common.executor import MultiThreadedExecutor
 from katana_description import models
 from katana_driver.core.encoders import ARM_JOINTS, EncoderModel
 from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
@@ -16,7 +17,6 @@ from katana_interfaces.action import FollowJointTrajectory, PickAndPlace
 from katana_manipulation.pick_place_executor import PickPlaceExecutor
 from rclpy.action.client import GoalStatus
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from trajectory_msgs.msg import JointTrajectoryPoint

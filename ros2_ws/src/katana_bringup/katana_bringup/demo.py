@@ -173,8 +173,8 @@ def main(argv: list[str] | None = None) -> int:
                                                  real_time_factor=args.real_time_factor)
 
     import rclpy
+    from katana_common.executor import MultiThreadedExecutor
     from katana_common.node_runner import spin_nodes
-    from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
     from rclpy.signals import SignalHandlerOptions
 

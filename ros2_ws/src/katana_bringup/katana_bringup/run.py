@@ -300,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
     names = ", ".join(n.get_name() for n in nodes)
     print(f"katana-run: backend {args.backend}: {names} (parameters: "
           f"{', '.join(str(f) for f in files)})", flush=True)
-    from rclpy.executors import MultiThreadedExecutor
+    from katana_common.executor import MultiThreadedExecutor
 
     return spin_nodes(nodes, "katana-run", args.duration,
                       executor=MultiThreadedExecutor(num_threads=EXECUTOR_THREADS),

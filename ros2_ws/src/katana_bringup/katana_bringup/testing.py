@@ -9,8 +9,8 @@ from collections.abc import Callable
 from typing import Any
 
 import rclpy
+from katana_common.executor import MultiThreadedExecutor
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 
 

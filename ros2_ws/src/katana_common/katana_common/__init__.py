@@ -6,4 +6,7 @@
 - `qos`: the QoS profiles, named by purpose.
 - `conversions`: stamps and durations to and from seconds.
 - `futures`: the bounded wait on an rclpy future from a callback thread.
+- `executor`: the MultiThreadedExecutor every multi-threaded graph spins on (rclpy's without
+  two busy loops of its spinning thread).
+- `action_client`: the ActionClient every node uses (rclpy's with rclpy#1123 closed).
 """

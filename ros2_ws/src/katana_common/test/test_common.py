@@ -297,9 +297,9 @@ def test_the_action_client_completes_a_goal_answered_before_its_future_is_regist
     """rclpy#1123: with rclpy's ActionClient such a response is ignored and the future never
     completes; katana_common's client holds the executor back until the future is known."""
     from katana_common.action_client import ActionClient
+    from katana_common.executor import MultiThreadedExecutor
     from katana_interfaces.action import GripperCommand
     from rclpy.action import ActionServer
-    from rclpy.executors import MultiThreadedExecutor
 
     def execute(goal_handle):
         goal_handle.succeed()

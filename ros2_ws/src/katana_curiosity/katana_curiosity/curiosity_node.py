@@ -17,13 +17,13 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
+from katana_common.executor import MultiThreadedExecutor
 from katana_common.node_runner import run_node
 from katana_common.params import ParameterError, declare_parameters
 from katana_common.qos import EVENT_QOS, STATE_QOS
 from katana_interfaces.msg import Experience, LearnerState
 from katana_manipulation.core.reach import pick_reach
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray

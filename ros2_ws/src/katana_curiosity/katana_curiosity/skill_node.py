@@ -18,6 +18,7 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
+from katana_common.executor import MultiThreadedExecutor
 from katana_common.node_runner import run_node
 from katana_common.params import Param, ParameterError, declare_parameters
 from katana_common.scene import SCENE_PARAMS
@@ -25,7 +26,6 @@ from katana_interfaces.action import BuildStack
 from katana_manipulation.core.reach import pick_reach, place_reach_table
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 
 from .core.block_choice import PickReach

@@ -16,6 +16,7 @@ import pytest
 import rclpy
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from katana_common.executor import MultiThreadedExecutor
 from katana_common.params import ParameterError
 from katana_common.qos import STATE_QOS
 from katana_common.testing import private_domain_id
@@ -28,7 +29,6 @@ from katana_interfaces.action import PickAndPlace
 from katana_interfaces.msg import Block, BlockArray, Experience, FoveaInstance, LearnerState
 from katana_interfaces.srv import FindPlacement, JudgePlacement, ObserveSetting, ResetWorld
 from rclpy.action import ActionServer
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient

@@ -9,13 +9,13 @@ import rclpy
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from katana_common.action_client import ActionClient
+from katana_common.executor import MultiThreadedExecutor
 from katana_common.params import ParameterError
 from katana_curiosity.core.robot_loop import robot_bank
 from katana_curiosity.core.run_record import CHECKPOINT_NAME, save_checkpoint
 from katana_curiosity.skill_node import SkillNode, load_model
 from katana_interfaces.action import BuildStack
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.parameter import Parameter
 
 

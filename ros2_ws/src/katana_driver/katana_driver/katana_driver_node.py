@@ -15,6 +15,7 @@ import threading
 import time
 
 from katana_common.conversions import time_msg
+from katana_common.executor import MultiThreadedExecutor
 from katana_common.node_runner import run_node
 from katana_common.params import declare_parameters
 from katana_common.qos import JOINT_STATE_QOS, STATE_QOS
@@ -23,7 +24,6 @@ from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.srv import ResetWorld, SetMotors
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool

@@ -18,10 +18,10 @@ from dataclasses import dataclass
 import rclpy
 from katana_common.action_client import ActionClient
 from katana_common.conversions import duration_msg
+from katana_common.executor import MultiThreadedExecutor
 from katana_interfaces.action import FollowJointTrajectory
 from rclpy.action.client import GoalStatus
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState

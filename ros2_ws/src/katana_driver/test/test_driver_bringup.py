@@ -4,10 +4,10 @@ import time
 
 import pytest
 import rclpy
+from katana_common.executor import MultiThreadedExecutor
 from katana_common.params import ParameterError
 from katana_driver.bringup import build_hardware_nodes, load_hardware_params
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image, JointState

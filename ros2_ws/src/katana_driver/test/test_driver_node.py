@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from katana_common.action_client import ActionClient
 from katana_common.conversions import duration_msg
+from katana_common.executor import MultiThreadedExecutor
 from katana_common.params import ParameterError
 from katana_driver.core import protocol as p
 from katana_driver.core.encoders import ALL_JOINTS, ARM_JOINTS
@@ -20,7 +21,6 @@ from katana_interfaces.msg import JointTolerance
 from katana_interfaces.srv import ResetWorld, SetMotors
 from rclpy.action.client import GoalStatus
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState

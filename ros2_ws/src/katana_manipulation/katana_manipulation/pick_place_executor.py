@@ -20,6 +20,7 @@ import sys
 import threading
 
 from katana_common.action_client import ActionClient
+from katana_common.executor import MultiThreadedExecutor
 from katana_common.futures import Stopped
 from katana_common.node_runner import run_node
 from katana_common.params import Param, declare_parameters
@@ -28,7 +29,6 @@ from katana_description import models as m
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand, PickAndPlace
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 

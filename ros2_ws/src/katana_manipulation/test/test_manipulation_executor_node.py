@@ -14,13 +14,13 @@ from geometry_msgs.msg import Pose
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from katana_common.action_client import ActionClient
+from katana_common.executor import MultiThreadedExecutor
 from katana_interfaces.action import PickAndPlace
 from katana_manipulation.core import pick_place as pp
 from katana_manipulation.pick_place_executor import PickPlaceExecutor
 from katana_sim.sim_node import SimNode
 from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 

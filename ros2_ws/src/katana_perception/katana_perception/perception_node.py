@@ -16,6 +16,7 @@ import sys
 
 import cv2
 import numpy as np
+from katana_common.executor import MultiThreadedExecutor
 from katana_common.node_runner import run_node
 from katana_common.params import Param, declare_parameters
 from katana_common.qos import EVENT_QOS, SENSOR_QOS, STATE_QOS
@@ -23,7 +24,6 @@ from katana_common.scene import SCENE_PARAMS
 from katana_interfaces.msg import BlockArray
 from katana_interfaces.srv import JudgePlacement
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header

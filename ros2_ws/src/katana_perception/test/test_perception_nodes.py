@@ -8,6 +8,7 @@ import time
 import numpy as np
 import pytest
 import rclpy
+from katana_common.executor import MultiThreadedExecutor
 from katana_common.params import ParameterError
 from katana_common.qos import STATE_QOS
 from katana_interfaces.msg import BlockArray, Experience
@@ -20,7 +21,6 @@ from katana_perception.core.synthetic import Renderer, stack_block
 from katana_perception.fovea_node import FoveaNode
 from katana_perception.perception_node import PerceptionNode
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data

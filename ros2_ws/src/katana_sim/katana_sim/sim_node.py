@@ -17,13 +17,13 @@ import sys
 import threading
 import time
 
+from katana_common.executor import MultiThreadedExecutor
 from katana_common.node_runner import run_node
 from katana_common.params import ParameterError, declare_parameters
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.srv import ResetWorld
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 
 from katana_sim import messages as msgs

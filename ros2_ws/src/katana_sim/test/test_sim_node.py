@@ -12,6 +12,7 @@ import rclpy
 from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
 from katana_common.action_client import ActionClient
+from katana_common.executor import MultiThreadedExecutor
 from katana_common.qos import JOINT_STATE_QOS, SENSOR_QOS, STATE_QOS
 from katana_description import models as m
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand
@@ -20,7 +21,6 @@ from katana_interfaces.srv import ResetWorld
 from katana_sim.sim_node import SimNode
 from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image, JointState

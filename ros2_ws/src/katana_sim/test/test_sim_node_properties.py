@@ -15,13 +15,13 @@ from builtin_interfaces.msg import Duration
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from katana_common.action_client import ActionClient
+from katana_common.executor import MultiThreadedExecutor
 from katana_description import models as m
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.msg import JointTolerance
 from katana_interfaces.srv import ResetWorld
 from katana_sim.sim_node import SimNode
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from trajectory_msgs.msg import JointTrajectoryPoint

@@ -1,0 +1,72 @@
+"""rclpy's MultiThreadedExecutor without two ways its spinning thread loops while it waits.
+
+While the spinning thread loops it holds the GIL, which the worker it is waiting for needs to
+start. In bench_arm's graph (one process) a result reached its client 100-600 ms after its
+goal ended in about one goal of three, and a pick-and-place took 0.6-0.9 s where 0.27 s does.
+
+1. A subscription's QoS event handlers (rclpy gives each subscription two: incompatible QoS
+   and incompatible type) wait on the subscription's DDS reader. Once a message has arrived
+   and its callback is queued, the subscription leaves the wait set until a worker takes the
+   message, but its event handlers stay in it, and the reader's pending message ends every
+   wait at once with no event ready: a busy loop. Here the event handlers leave with it.
+2. rclpy#1452: `wait_for_ready_callbacks` hands out every task that is neither done nor
+   executing, and this executor only queues for its pool what it is handed: until a worker
+   starts a task, the task is handed out and queued again in every round of the wait loop (in
+   the busy loop of 1., up to 700 times). Fixed in rclpy 10.0.4 (rolling, rclpy#1547), not in
+   the Jazzy wheels on PyPI. Here a task counts as executing from the moment it is queued; the
+   worker clears the mark just before it runs the task.
+
+Use it wherever a multi-threaded executor is made.
+"""
+
+from __future__ import annotations
+
+import weakref
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+from rclpy.event_handler import EventHandler
+from rclpy.executors import MultiThreadedExecutor as _RclpyMultiThreadedExecutor
+from rclpy.task import Task
+
+
+def _start(task: Task) -> None:
+    task._executing = False  # rclpy's Task runs only when it is not marked executing
+    task()
+
+
+class _QueuedCountsAsExecuting:
+    """The executor's thread pool; what it queues reports executing until a worker takes it."""
+
+    def __init__(self, pool: ThreadPoolExecutor) -> None:
+        self._pool = pool
+
+    def submit(self, task: Task) -> Any:
+        task._executing = True
+        return self._pool.submit(_start, task)
+
+    def __getattr__(self, name: str) -> Any:  # shutdown and the rest: the pool's own
+        return getattr(self._pool, name)
+
+
+class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._executor = _QueuedCountsAsExecuting(self._executor)
+        # event handler -> its subscription (None: a publisher's); only the spinning thread uses it
+        self._subscription_of: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+    def can_execute(self, entity: Any) -> bool:
+        if not super().can_execute(entity):
+            return False
+        if not isinstance(entity, EventHandler):
+            return True
+        if entity not in self._subscription_of:  # a handler not seen yet: map them all again
+            for node in self.get_nodes():
+                for subscription in node.subscriptions:
+                    for handler in subscription.event_handlers:
+                        self._subscription_of[handler] = weakref.ref(subscription)
+            self._subscription_of.setdefault(entity, None)
+        owner = self._subscription_of[entity]
+        subscription = owner() if owner is not None else None
+        return subscription is None or not subscription._executor_event
