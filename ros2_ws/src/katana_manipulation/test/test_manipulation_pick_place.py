@@ -113,3 +113,60 @@ def test_slip_and_unresponsive_arm_are_reported():
 
     res = pp.execute_pick_place(req, NoState(), pp.PickPlacePlanner())
     assert res.code == pp.TIMEOUT and "joint_states" in res.message
+
+
+class JammedRelease:
+    """A fake arm whose fingers stay on the block when asked to open after the grasp, for the
+    first `jammed_opens` such goals (the sim's pads can wedge a block that rests on its support)."""
+
+    BLOCK = m.finger_angle_for_opening(0.04)
+
+    def __init__(self, jammed_opens: int) -> None:
+        self.jammed_opens = jammed_opens
+        self.fingers = m.GRIPPER_OPEN
+        self.calls: list[str] = []
+
+    def move(self, points, times, velocities=None):
+        self.calls.append("move")
+        return pp.MoveResult(True)
+
+    def grip(self, position, effort):
+        self.calls.append(f"grip {position:.3f}")
+        closing = position < self.BLOCK
+        if closing:
+            self.fingers = self.BLOCK
+        elif self.fingers == self.BLOCK and self.jammed_opens > 0:
+            self.jammed_opens -= 1  # stalled where it was
+        else:
+            self.fingers = position
+        stalled = self.fingers != position
+        return pp.GripResult(True, self.fingers, stalled, not stalled)
+
+    def joint_positions(self):
+        q = dict(zip(m.ARM_JOINTS, m.PARK_POSE, strict=True))
+        q.update({n: self.fingers for n in m.FINGER_JOINTS})
+        return q
+
+
+REQ = pp.PickPlaceRequest((0.2, 0.0, 0.015), 0.0, (0.04, 0.04, 0.03), (0.2, 0.1, 0.045), 0.0)
+
+
+def test_a_release_that_leaves_the_block_held_stops_the_arm_where_it_is():
+    port = JammedRelease(jammed_opens=2)
+    res = pp.execute_pick_place(REQ, port, pp.PickPlacePlanner())
+    assert res.code == pp.ARM_DID_NOT_REACH and res.phase == "release"
+    assert "still held" in res.message
+    # the release, one wide opening more, and nothing after: a retreat would drag the block
+    assert port.calls[-2:] == [port.calls[-2], f"grip {m.GRIPPER_OPEN:.3f}"]
+    assert port.calls[-3] == "move" and port.calls.count("move") == 4  # up to the lowering
+
+
+def test_a_release_that_opens_on_the_second_try_goes_on():
+    port = JammedRelease(jammed_opens=1)
+    res = pp.execute_pick_place(REQ, port, pp.PickPlacePlanner())
+    assert res.success, res.message
+    assert f"grip {m.GRIPPER_OPEN:.3f}" in port.calls
+    assert port.calls[-1] == "move"  # retreated and parked after the second opening
+    clean = JammedRelease(jammed_opens=0)
+    assert pp.execute_pick_place(REQ, clean, pp.PickPlacePlanner()).success
+    assert f"grip {m.GRIPPER_OPEN:.3f}" not in clean.calls  # the release opened the first time

@@ -454,6 +454,9 @@ class PickPlacePlanner:
                 + [q_place])
         segs.append(Segment("lower", "check"))
         segs.append(Segment("release", "grip", position=release))
+        # the fingers must have let go: open at least half the pregrasp margin past the block
+        segs.append(Segment("release", "check", position=min(
+            release, m.finger_angle_for_opening(grip_width + p.pregrasp_margin / 2))))
         q = arm("retreat", q, self._vertical(q, (place_xyz[0], place_xyz[1], z_apl),
                                              place_yaw_grip, q_place[4], place_xyz[2])
                 + [q_above_place, *via(q_above_place, rise_place_empty, t_place)])
@@ -541,7 +544,7 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
         segments = planner.plan(req, current)
     except PlanError as exc:
         return PickPlaceResult(False, exc.code, str(exc))
-    grip_at = math.nan
+    grip_at = released_at = math.nan
     holding = False
     for seg in segments:
         if cancelled():
@@ -564,7 +567,7 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
             if seg.phase == "grasp":
                 grip_at = g.position
             if seg.phase == "release":
-                holding = False
+                holding, released_at = False, g.position
         else:  # check the grip
             if seg.phase == "grasp":
                 expected = seg.position
@@ -575,6 +578,18 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
                         f"fingers closed to {grip_at:.3f} rad; a block holds them near "
                         f"{expected:.3f}", seg.phase)
                 holding = True
+                continue
+            if seg.phase == "release":  # judged on the gripper's own result: no stale state
+                if not released_at >= seg.position:  # stalled on the block: open once more
+                    g = port.grip(m.GRIPPER_OPEN, planner.p.grip_effort)
+                    released_at = g.position if g.ok else released_at
+                if not released_at >= seg.position:
+                    # no recovery motion: leaving now would drag the block and its support
+                    return PickPlaceResult(
+                        False, ARM_DID_NOT_REACH,
+                        f"release: the fingers stayed at {released_at:.3f} rad, short of "
+                        f"{seg.position:.3f}: the block is still held, the arm stays where it is",
+                        seg.phase)
                 continue
             joints = port.joint_positions()
             if joints is None:
