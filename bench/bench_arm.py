@@ -171,6 +171,7 @@ def through_ros(all_trials: list[Trial], floor=None) -> tuple[list[dict], list[f
     from geometry_msgs.msg import Pose
     from katana_bringup.testing import InProcessGraph
     from katana_common.action_client import ActionClient
+    from katana_description import models as m
     from katana_interfaces.action import PickAndPlace
     from katana_manipulation.pick_place_executor import PickPlaceExecutor
     from katana_sim.sim_node import SimNode
@@ -181,6 +182,10 @@ def through_ros(all_trials: list[Trial], floor=None) -> tuple[list[dict], list[f
         p.position.x, p.position.y, p.position.z = (float(v) for v in xyz)
         p.orientation.z, p.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
         return p
+
+    def parked(joints) -> bool:  # the executor has seen the arm at the park pose
+        return joints is not None and all(
+            abs(joints[n] - q) < 1e-3 for n, q in zip(m.ARM_JOINTS, m.PARK_POSE, strict=True))
 
     outcomes, walls, floors = [], [], []
     with InProcessGraph() as g:
@@ -197,6 +202,9 @@ def through_ros(all_trials: list[Trial], floor=None) -> tuple[list[dict], list[f
                 floors.append(floor(trial))
             with sim.lock:
                 req, mover = set_scene(sim.world, trial)
+                # the arm was teleported to park: a goal that ended early had left it elsewhere
+                sim.outputs.publish_due(images=False, force=True)
+            g.wait_for(lambda: parked(executor.latest_joints))
             goal = PickAndPlace.Goal(block_id=mover, pick=pose(req.pick, req.pick_yaw),
                                      place=pose(req.place, req.place_yaw))
             goal.block_size.x, goal.block_size.y, goal.block_size.z = req.block_size

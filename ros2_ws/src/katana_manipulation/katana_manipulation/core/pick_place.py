@@ -455,8 +455,8 @@ class PickPlacePlanner:
         segs.append(Segment("lower", "check"))
         segs.append(Segment("release", "grip", position=release))
         # the fingers must have let go: open at least half the pregrasp margin past the block
-        segs.append(Segment("release", "check", position=min(
-            release, m.finger_angle_for_opening(grip_width + p.pregrasp_margin / 2))))
+        let_go = m.finger_angle_for_opening(grip_width + p.pregrasp_margin / 2)
+        segs.append(Segment("release", "check", position=min(release, let_go)))
         q = arm("retreat", q, self._vertical(q, (place_xyz[0], place_xyz[1], z_apl),
                                              place_yaw_grip, q_place[4], place_xyz[2])
                 + [q_above_place, *via(q_above_place, rise_place_empty, t_place)])
