@@ -59,9 +59,10 @@ class Trial(NamedTuple):
     place_yaw: float
 
 
-def _sample_xy(rng, band) -> tuple[float, float]:
-    lo = max(band.min_m, BASE_CLEARANCE_M)
-    r = math.sqrt(rng.uniform(lo * lo, band.max_m * band.max_m))  # uniform over the annulus
+def _sample_xy(rng, band, margin_m: float = 0.0) -> tuple[float, float]:
+    """Uniform over the annulus of `band`, `margin_m` inside both of its edges."""
+    lo, hi = max(band.min_m, BASE_CLEARANCE_M) + margin_m, band.max_m - margin_m
+    r = math.sqrt(rng.uniform(lo * lo, hi * hi))
     a = rng.uniform(*ANGLE_RANGE)
     return r * math.cos(a), r * math.sin(a)
 
@@ -76,7 +77,7 @@ def trials(n: int = RUNS, seed: int = SEED) -> list[Trial]:
     for i in range(n):
         h = i % 4
         while True:
-            stack = _sample_xy(rng, place_reach(h))
+            stack = _sample_xy(rng, place_reach(h), MAX_OFFSET_M)  # the offset stays inside
             pick = _sample_xy(rng, pick_reach(1))
             if math.dist(stack, pick) > 0.09:  # the fingers must not touch the stack
                 break
