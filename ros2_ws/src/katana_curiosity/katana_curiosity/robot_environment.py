@@ -359,7 +359,8 @@ class RobotEnvironment:
 
     def _choose_block(self, blocks: BlockArray, instance: FoveaInstance, excluded: set[str]):
         views = [BlockView(b.id, b.pose.position.x, b.pose.position.y, b.on_top, b.level,
-                           stands_upright((b.size.x, b.size.y, b.size.z)))
+                           b.resting_pose_known
+                           and stands_upright((b.size.x, b.size.y, b.size.z)))
                  for b in blocks.blocks if b.id not in excluded and not self._still_unpickable(b)]
         reach = self.config.reach
         choice = choose_block_to_move(

@@ -76,7 +76,8 @@ class FakeGraph(Node):
         msg = BlockArray()
         msg.header.frame_id = "world"
         for i, (x, y) in enumerate(BLOCK_XY):
-            b = Block(id=f"b{i}", color=f"c{i}", level=1, on_top=True, visible=True)
+            b = Block(id=f"b{i}", color=f"c{i}", level=1, on_top=True, visible=True,
+                      resting_pose_known=True)
             b.pose.position.x, b.pose.position.y, b.pose.position.z = x, y, 0.015
             msg.blocks.append(b)
         self.blocks_pub.publish(msg)
@@ -492,14 +493,15 @@ def test_invalid_parameters_stop_the_node_with_the_parameter_named(tmp_path, nam
 
 _floats = st.floats(allow_nan=True, allow_infinity=True, width=32)
 _block = st.builds(
-    lambda i, x, y, z, level, on_top: (i, x, y, z, level, on_top),
-    st.text(max_size=4), _floats, _floats, _floats, st.integers(0, 255), st.booleans())
+    lambda i, x, y, z, level, on_top, known: (i, x, y, z, level, on_top, known),
+    st.text(max_size=4), _floats, _floats, _floats, st.integers(0, 255), st.booleans(),
+    st.booleans())
 
 
 def _block_array(blocks) -> BlockArray:
     msg = BlockArray()
-    for i, x, y, z, level, on_top in blocks:
-        b = Block(id=i, level=level, on_top=on_top)
+    for i, x, y, z, level, on_top, known in blocks:
+        b = Block(id=i, level=level, on_top=on_top, resting_pose_known=known)
         b.pose.position.x, b.pose.position.y, b.pose.position.z = x, y, z
         msg.blocks.append(b)
     return msg
@@ -527,8 +529,8 @@ def test_arbitrary_blocks_and_instances_are_answered_not_crashed(idle_node, bloc
     inst = FoveaInstance(state=state, action=action, support_ids=supports)
     inst.placement.position.x, inst.placement.position.y = px, py
     chosen = env._choose_block(msg, inst, set())
-    if chosen is not None:  # only a reachable top block outside the target stack
-        assert chosen.on_top and chosen.id not in supports
+    if chosen is not None:  # only a reachable top block outside the target stack, known upright
+        assert chosen.on_top and chosen.id not in supports and chosen.resting_pose_known
         r = math.hypot(chosen.pose.position.x, chosen.pose.position.y)
         low, high = env.config.reach.bands_m[chosen.level - 1]
         assert low <= r <= high
@@ -538,7 +540,7 @@ def test_arbitrary_messages_on_the_topics_leave_the_node_serving(idle_node) -> N
     g = idle_node
     blocks = g.probe.create_publisher(BlockArray, BLOCKS_TOPIC, STATE_QOS)
     joints = g.probe.create_publisher(JointState, "joint_states", 10)
-    nasty = [(s, v, -v, v, 255, True) for s, v in
+    nasty = [(s, v, -v, v, 255, True, True) for s, v in
              [("", math.nan), ("\u00e9", math.inf), ("x" * 200, -1e30), ("b0", 0.0)]]
     for k in range(len(nasty)):
         blocks.publish(_block_array(nasty[: k + 1]))

@@ -296,3 +296,16 @@ def test_blocks_the_arm_cannot_take_are_left_until_they_move() -> None:
     assert not leave_until_moved("grasp_missed", after_failed_pick_place("grasp_missed", 1, 2))
     for name in ("place_unreachable", "arm_did_not_reach", "collision"):  # not the block's fault
         assert not leave_until_moved(name, after_failed_pick_place(name, 1, 2)), name
+
+
+def test_a_setting_with_no_usable_instance_is_reset_at_once(tmp_path) -> None:
+    """Nothing moved, so observing it again would offer nothing again: one drop, one reset
+    (a transient failure, a slip, is retried up to failures_before_reset times first)."""
+    failures = {2: Unrealisable("no_usable_instance", "none"),
+                4: ExperimentAborted("block_slipped", "slipped")}
+    arm = ScriptedArm(0, failures)
+    loop, _ = make_loop(tmp_path, arm, max_experiments=3)
+    assert loop.run().startswith("done")
+    assert arm.resets == 1
+    assert " ".join(arm.calls).count("observe reset") == 1  # right after the unusable setting
+    assert loop.dropped_total == {"no_usable_instance": 1, "block_slipped": 1}

@@ -158,7 +158,7 @@ def block_to_msg(b: Block) -> BlockMsg:
     m = BlockMsg(id=b.id, color=b.color, size=_size(b.size), yaw=float(b.yaw),
                  level=int(b.level), on_top=bool(b.on_top), visible=bool(b.visible),
                  pixel_u=float(b.pixel_u), pixel_v=float(b.pixel_v),
-                 pixel_angle=float(b.pixel_angle))
+                 pixel_angle=float(b.pixel_angle), resting_pose_known=bool(b.pose_known))
     m.pose.position.x, m.pose.position.y, m.pose.position.z = float(b.x), float(b.y), float(b.z)
     yaw_quaternion(m.pose, b.yaw)
     return m
@@ -185,7 +185,8 @@ def blocks_from_msg(msg: BlockArray) -> list[Block]:
             raise ValueError(f"block {m.id!r} has size {size}")
         out.append(Block(m.id, m.color or m.id, p.x, p.y, m.yaw, level=int(m.level),
                          on_top=bool(m.on_top), visible=bool(m.visible), pixel_u=m.pixel_u,
-                         pixel_v=m.pixel_v, pixel_angle=m.pixel_angle, size=size))
+                         pixel_v=m.pixel_v, pixel_angle=m.pixel_angle, size=size,
+                         pose_known=bool(m.resting_pose_known)))
     if len({b.id for b in out}) != len(out):
         raise ValueError("duplicate block ids")
     carried: set[str] = set()

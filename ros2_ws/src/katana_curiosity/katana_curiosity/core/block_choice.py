@@ -16,7 +16,9 @@ class BlockView:
     y: float
     on_top: bool
     level: int
-    upright: bool = True  # False: it fell onto its side (too tall and narrow to stack)
+    # known to stand upright; False: it fell onto its side (too tall and narrow to stack), or
+    # it has not been seen clearly since it last moved, so that nobody knows
+    upright: bool = True
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,9 @@ Policy (the paper's robot had a person for this; here it is explicit):
   missed grasp given up, a slip, a time-out) is *dropped*: nothing is learned or logged, and
   the reason is counted in the next record's `dropped_before`.
 - After `failures_before_reset` drops in a row, or when a block lies out of reach, or when
-  `stuck_reset` experiments in a row offered only the table, the environment is reset.
+  `stuck_reset` experiments in a row offered only the table, the environment is reset. A
+  setting that offers no usable instance is reset at once: nothing has moved, so observing it
+  again offers nothing again.
 - No experiment wasted: a planned placement whose outcome the learner already knows is made
   only if it leads towards an unknown pair (`leads_towards_unknown`); otherwise the setting
   is changed (reset) instead, at most `setting_changes` times in a row before the plan is
@@ -176,6 +178,10 @@ class RobotEnvironment(Environment, Protocol):
     def reset(self) -> str: ...
 
 
+#: drops that leave the setting as it was: trying it again can only fail again
+STILL_SETTING_REASONS = frozenset({"no_usable_instance"})
+
+
 @dataclass(frozen=True)
 class LoopPolicy:
     max_experiments: int = 0  # in total, over resumes (0: never stop)
@@ -250,8 +256,10 @@ class RobotLoop:
                 self.dropped[reason] += 1
                 self.dropped_total[reason] += 1
                 self.logger.warning(f"experiment dropped ({reason}, {failures} in a row): {exc}")
-                force = failures >= self.policy.failures_before_reset
-                self.maybe_reset(force=force, why=f"{failures} failed attempts in a row")
+                force = (failures >= self.policy.failures_before_reset
+                         or reason in STILL_SETTING_REASONS)
+                self.maybe_reset(force=force, why=f"{failures} failed attempts in a row"
+                                 if reason not in STILL_SETTING_REASONS else reason)
                 if force:
                     failures = 0
                 self.stop.wait(min(self.policy.backoff_s * failures, self.policy.max_backoff_s))

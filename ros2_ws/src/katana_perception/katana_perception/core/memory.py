@@ -48,6 +48,9 @@ class Block:
     size: tuple[float, float, float] = BLOCK_SIZE
     missing: int = 0  # consecutive updates in which it was neither seen nor covered
     rest_frame: int = -1  # the last update in which it was seen where it was remembered
+    # its resting extents come from a clean view since it last moved: a block that came to rest
+    # partly covered (by a stack's parallax, say) may lie on its side without anyone knowing
+    pose_known: bool = False
 
     @property
     def z(self) -> float:
@@ -204,6 +207,7 @@ class BlockMemory:
                 self.blocks[s.id] = b
                 self._place(b, s)
                 b.rest_frame = self.frame
+                b.pose_known = s.complete
                 moved.add(s.id)
                 events[s.id] = "new"
                 continue
@@ -212,6 +216,7 @@ class BlockMemory:
                 if stands_upright(size) != b.upright:
                     events[s.id] = "upright" if stands_upright(size) else "on its side"
                 b.size = size
+                b.pose_known = True
             x, y, yaw = self._locate(s, b.level, b.size)
             tol = (self.params.position_tolerance if s.complete
                    else self.params.occluded_tolerance)
@@ -238,6 +243,8 @@ class BlockMemory:
                     events.setdefault(up, "toppled")
         for bid in moved:
             self.blocks[bid].support = None
+            if not (bid in now and now[bid].complete):  # came to rest unseen or partly covered
+                self.blocks[bid].pose_known = False
         self._refresh()
         for bid in moved:  # on the table for now: locate at level 1
             if bid in now:
