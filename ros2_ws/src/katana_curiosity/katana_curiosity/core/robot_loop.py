@@ -256,10 +256,10 @@ class RobotLoop:
                 self.dropped[reason] += 1
                 self.dropped_total[reason] += 1
                 self.logger.warning(f"experiment dropped ({reason}, {failures} in a row): {exc}")
-                force = (failures >= self.policy.failures_before_reset
-                         or reason in STILL_SETTING_REASONS)
-                self.maybe_reset(force=force, why=f"{failures} failed attempts in a row"
-                                 if reason not in STILL_SETTING_REASONS else reason)
+                still = reason in STILL_SETTING_REASONS
+                force = still or failures >= self.policy.failures_before_reset
+                self.maybe_reset(force=force, why=reason if still else
+                                 f"{failures} failed attempts in a row")
                 if force:
                     failures = 0
                 self.stop.wait(min(self.policy.backoff_s * failures, self.policy.max_backoff_s))
