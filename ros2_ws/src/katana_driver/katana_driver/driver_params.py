@@ -10,7 +10,7 @@ from __future__ import annotations
 from katana_common.params import Param
 from katana_description import models
 
-from katana_driver.core.encoders import variant_of
+from katana_driver.core.encoders import refusal_of, variant_of
 
 PARAMS = (
     Param("model", models.DEFAULT_MODEL, "arm model TYPE_VARIANT (the angled 6M90A/B grippers "
@@ -40,6 +40,9 @@ PARAMS = (
 
 
 def cross_check(values) -> str | None:
+    refusal = refusal_of(values["model"])
+    if refusal:
+        return f"parameter 'model' = {values['model']!r}: {refusal}"
     kind, _ = variant_of(values["model"])
     if (values["transport"] == "serial") != (kind == 300):
         return (f"parameter 'transport' = {values['transport']!r} does not fit model "

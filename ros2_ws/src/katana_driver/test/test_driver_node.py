@@ -280,11 +280,24 @@ def test_goals_are_refused_clearly_without_a_controller(graph, make_emulator):
     assert "no connection to the Katana controller" in res.result.error_string
 
 
-def test_serial_transport_through_a_pseudo_terminal(graph, make_emulator):
-    emulator = make_emulator(serial=True)
-    g = graph(emulator, transport="serial", serial_device=emulator.serial_device, model="300_6m180")
-    g.ready()
-    assert g.states[-1].position[1] == pytest.approx(2.168572 - 0.01, abs=1e-4)
+@pytest.mark.parametrize(
+    ("model", "transport", "why"),
+    [("300_6m180", "serial", "81408 ticks per cycle"), ("400_6m180", "tcp", "G\\+128")],
+)
+def test_models_not_driven_as_kni_drives_them_are_refused_at_start_up(model, transport, why):
+    """The Katana 300's motor 3 would end near 0.24 rad when commanded 2.0 (KNI's cfg)."""
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        with pytest.raises(ParameterError, match=f"'model' = '{model}'.*refused.*{why}"):
+            KatanaDriverNode(
+                node_name=f"katana_driver_refused_{next(_ids)}",
+                context=ctx,
+                parameter_overrides=[Parameter("model", value=model),
+                                     Parameter("transport", value=transport)],
+            )
+    finally:
+        rclpy.shutdown(context=ctx)
 
 
 @pytest.mark.parametrize(

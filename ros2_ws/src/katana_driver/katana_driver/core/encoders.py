@@ -18,6 +18,18 @@ from .protocol import TICK_S
 VARIANTS = ("6M180", "6M90A", "6M90B")
 KATANA_TYPES = (300, 400, 450)
 
+#: Katana types the driver refuses at start-up, with the reason. The driver drives only what
+#: it drives exactly as the vendor's library (KNI 4.3.0) does; these differ from the 450 in
+#: facts the encoder model and the protocol layer do not yet carry per type.
+REFUSED_TYPES = {
+    300: "KNI's Katana 300 configuration differs from the 450's in encoder facts the driver "
+         "does not model (motor 3: 81408 ticks per cycle, not 47488, so a commanded 2.0 rad "
+         "would end near 0.24 rad; gripper encoders 31000 open / -16768 closed) and in its "
+         "protocol (motor-by-motor calibration, single G segments without H, no flush)",
+    400: "KNI drives the Katana 400 with G and G+128 spline segments, not H, and with wider "
+         "joint ranges than the 450's that the driver uses",
+}
+
 # Joint names and speed limits are katana_description's (one source for the sim and the arm).
 ARM_JOINTS = models.ARM_JOINTS
 FINGER_JOINTS = models.FINGER_JOINTS
@@ -37,6 +49,13 @@ def variant_of(model_name: str) -> tuple[int, str]:
         raise ValueError(f"arm model '{model_name}' is not TYPE_VARIANT with TYPE in "
                          f"{KATANA_TYPES} and VARIANT in {VARIANTS}")
     return int(kind), variant.upper()
+
+
+def refusal_of(model_name: str) -> str | None:
+    """Why the driver refuses to drive `model_name`, or None when it drives it as KNI does."""
+    kind, _ = variant_of(model_name)
+    reason = REFUSED_TYPES.get(kind)
+    return None if reason is None else f"the Katana {kind} is refused: {reason}"
 
 
 @dataclass(frozen=True)
