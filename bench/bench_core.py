@@ -14,11 +14,11 @@ import time
 import numpy as np
 from katana_curiosity.core import fastpath
 from katana_curiosity.core.abstract_world import AbstractBlocksWorld
-from katana_curiosity.core.experiments import RunConfig, build_run
-from katana_curiosity.core.experiments import run as run_experiment
 from katana_curiosity.core.explorer import Explorer, make_strategy
 from katana_curiosity.core.planner import Planner
 from katana_curiosity.core.predictors import PredictorBank, QueryRule
+from katana_paper.experiments import RunConfig, build_run
+from katana_paper.experiments import run as run_experiment
 
 METHODS = ("q1", "q10", "conf", "random")
 # Issue 12: Q1 >= 100k steps/s in one process, Q10 and Random >= 3x the NumPy reference (the
@@ -60,7 +60,7 @@ def cold_compile_s() -> float:
     """First fast run in a fresh process with an empty numba cache (what a new clone pays once)."""
     code = (
         "import time; t = time.perf_counter(); "
-        "from katana_curiosity.core.experiments import RunConfig, run; "
+        "from katana_paper.experiments import RunConfig, run; "
         "run(RunConfig(steps=10), engine='fast'); print(time.perf_counter() - t)"
     )
     with tempfile.TemporaryDirectory() as cache:
@@ -124,7 +124,7 @@ def paper_default() -> tuple[float, float]:
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         start = time.perf_counter()
         subprocess.run(
-            [sys.executable, "-m", "katana_curiosity", "paper", "--jobs", "2", "--out", out],
+            [sys.executable, "-m", "katana_paper", "paper", "--jobs", "2", "--out", out],
             check=True,
             capture_output=True,
         )

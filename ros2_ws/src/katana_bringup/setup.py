@@ -24,7 +24,6 @@ setup(
         "console_scripts": [
             "katana-run = katana_bringup.run:main",
             "katana-demo = katana_bringup.demo:main",
-            "katana-robot = katana_bringup.robot:main",
             "run_recorder = katana_bringup.recorder_node:main",
         ],
     },

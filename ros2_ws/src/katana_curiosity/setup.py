@@ -14,11 +14,10 @@ setup(
     zip_safe=True,
     maintainer="Katana curiosity maintainers",
     maintainer_email="katana-curiosity@example.org",
-    description="Curiosity-driven skill acquisition core and curiosity_node.",
+    description="The curiosity algorithm, its worlds, the robot loop and its two nodes.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "katana-curiosity = katana_curiosity.cli:main",
             "curiosity_node = katana_curiosity.curiosity_node:main",
             "skill_node = katana_curiosity.skill_node:main",
         ],

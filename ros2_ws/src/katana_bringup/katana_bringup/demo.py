@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     wall = time.monotonic() - start
     done = learner.experiments
 
-    from katana_curiosity.core.robot_report import append_session, read_sessions, write_report
+    from katana_bringup.run_report import append_session, read_sessions, write_report
 
     # this session's figures are kept beside the log, so a resumed run's summary covers all
     append_session(out, {

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from katana_curiosity.core.abstract_world import AbstractBlocksWorld
 from katana_curiosity.core.environment import Setting
-from katana_curiosity.core.experiments import RunConfig, run
 from katana_curiosity.core.explorer import PLAN, QUERY, RANDOM, Explorer, make_strategy
 from katana_curiosity.core.predictors import PredictorBank, QueryRule
+from katana_paper.experiments import RunConfig, run
 
 
 class TracingWorld:

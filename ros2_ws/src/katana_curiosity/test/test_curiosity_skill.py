@@ -9,9 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-from katana_curiosity.core.metrics import bernoulli_kl
 from katana_curiosity.core.planner import HeightMDP, value_iteration
-from katana_curiosity.core.robot_truth import TruthTable, kl_to_truth, wilson_interval
 from katana_curiosity.core.skill import (
     REACH_MARGIN_M,
     LearnedModel,
@@ -21,6 +19,8 @@ from katana_curiosity.core.skill import (
     choose_base,
 )
 from katana_manipulation.core.reach import place_reach_table
+from katana_paper.metrics import bernoulli_kl
+from katana_paper.robot_truth import TruthTable, kl_to_truth, wilson_interval
 
 N_ACTIONS = 6
 

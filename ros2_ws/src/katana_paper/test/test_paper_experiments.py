@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from katana_curiosity.cli import main
-from katana_curiosity.core.experiments import RunConfig, run, summarise
 from katana_curiosity.core.explorer import PLAN, QUERY
-from katana_curiosity.core.metrics import (
+from katana_paper.curiosity_cli import main
+from katana_paper.experiments import RunConfig, run, summarise
+from katana_paper.metrics import (
     bernoulli_kl,
     cumulative_by_state,
     direct_exploration_end,
@@ -124,7 +124,7 @@ def test_summary_matches_the_runs() -> None:
 )
 def test_invalid_cli_arguments_give_a_clear_error(tmp_path, args, message) -> None:
     proc = subprocess.run(
-        [sys.executable, "-m", "katana_curiosity", "paper", "--out", str(tmp_path), *args],
+        [sys.executable, "-m", "katana_paper", "paper", "--out", str(tmp_path), *args],
         capture_output=True,
         text=True,
         timeout=60,

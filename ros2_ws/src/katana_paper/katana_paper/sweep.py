@@ -20,9 +20,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from katana_curiosity.core.explorer import PLAN, QUERY, RANDOM, STRATEGIES
 
 from .experiments import FAST_METHOD_NAMES, RunConfig, run
-from .explorer import PLAN, QUERY, RANDOM, STRATEGIES
 
 # What a grid may sweep, with its type; every other RunConfig field is fixed for the sweep.
 SWEEPABLE: dict[str, type] = {
@@ -195,7 +195,7 @@ def run_sweep(
     ran = 0
     if todo:
         if any(c.method in FAST_METHOD_NAMES for c in todo):
-            from .fastpath import warm_up
+            from katana_curiosity.core.fastpath import warm_up
 
             warm_up()  # compiles once here rather than in every worker on a fresh checkout
         ray = _ray()
@@ -342,7 +342,7 @@ def sensitivity_figure(spec: SweepSpec, rows: Sequence[dict], path: Path) -> Non
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .plots import METHOD_LABELS
+    from .figures import METHOD_LABELS
 
     names = list(spec.grid)
     fig, axes = plt.subplots(1, len(names), figsize=(6 * len(names), 4.5), squeeze=False)

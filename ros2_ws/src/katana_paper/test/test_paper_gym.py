@@ -3,12 +3,12 @@
 import warnings
 
 import gymnasium
-import katana_curiosity  # noqa: F401  (registers the environment)
+import katana_paper  # noqa: F401  (registers the environment)
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 from katana_curiosity.core.abstract_world import AbstractBlocksWorld
-from katana_curiosity.core.gym_env import ENV_ID, BlocksWorldEnv
+from katana_paper.gym_env import ENV_ID, BlocksWorldEnv
 
 
 def test_registered_environment_passes_the_gymnasium_checker() -> None:
@@ -78,7 +78,7 @@ def test_an_instance_of_an_unavailable_height_changes_nothing() -> None:
 
 
 def test_readme_random_agent_runs() -> None:
-    env = gymnasium.make("katana_curiosity/BlocksWorld-v0")
+    env = gymnasium.make("katana_paper/BlocksWorld-v0")
     obs, info = env.reset(seed=0)
     for _ in range(100):
         obs, reward, terminated, truncated, info = env.step(

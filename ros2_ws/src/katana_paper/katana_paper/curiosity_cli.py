@@ -7,10 +7,10 @@ import sys
 import time
 
 from katana_common.cli_args import non_negative_int, positive_int, writable_folder
+from katana_curiosity.core.explorer import STRATEGIES
 from tqdm import tqdm
 
-from .core.experiments import DEFAULT_METHODS, RunConfig, run, run_many, save_results
-from .core.explorer import STRATEGIES
+from .experiments import DEFAULT_METHODS, RunConfig, run, run_many, save_results
 
 
 def _discount(text: str) -> float:
@@ -81,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _grid_axis(text: str) -> tuple[str, tuple]:
-    from .core.sweep import parse_grid_axis
+    from .sweep import parse_grid_axis
 
     try:
         return parse_grid_axis(text)
@@ -90,7 +90,7 @@ def _grid_axis(text: str) -> tuple[str, tuple]:
 
 
 def _add_sweep(sub) -> None:
-    from .core.sweep import DEFAULT_GRID, DEFAULT_SWEEP_METHODS
+    from .sweep import DEFAULT_GRID, DEFAULT_SWEEP_METHODS
 
     default_grid = " ".join(
         f"--grid {k}={','.join(f'{v:g}' for v in vs)}" for k, vs in DEFAULT_GRID.items()
@@ -133,7 +133,7 @@ def _add_sweep(sub) -> None:
 
 
 def _sweep(args, parser: argparse.ArgumentParser) -> int:
-    from .core.sweep import DEFAULT_GRID, SweepSpec, run_sweep
+    from .sweep import DEFAULT_GRID, SweepSpec, run_sweep
 
     grid = dict(args.grid) if args.grid else dict(DEFAULT_GRID)
     if args.grid and len(grid) != len(args.grid):
@@ -186,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
             results = run_many(configs, jobs=args.jobs, progress=lambda r: bar.update(1))
     summary = save_results(results, args.out)
     if not args.no_figures:
-        from .core.plots import paper_figures  # matplotlib only when figures are wanted
+        from .figures import paper_figures  # matplotlib only when figures are wanted
 
         paper_figures(results, args.out, jobs=args.jobs)
     wall = time.perf_counter() - start

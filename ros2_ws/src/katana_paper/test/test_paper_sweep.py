@@ -6,9 +6,9 @@ from dataclasses import asdict
 
 import numpy as np
 import pytest
-from katana_curiosity.cli import main
-from katana_curiosity.core.experiments import RunConfig, run
-from katana_curiosity.core.sweep import (
+from katana_paper.curiosity_cli import main
+from katana_paper.experiments import RunConfig, run
+from katana_paper.sweep import (
     SweepSpec,
     _ray,
     csv_header,

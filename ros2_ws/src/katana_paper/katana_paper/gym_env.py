@@ -1,6 +1,6 @@
 """The abstract blocks world of section 3.1 as a Gymnasium environment.
 
-`import katana_curiosity` registers it as "katana_curiosity/BlocksWorld-v0". One step is one
+`import katana_paper` registers it as "katana_paper/BlocksWorld-v0". One step is one
 experiment: the action picks an instance of the current setting (a height to place on and an
 action's feature vector), the world executes it, and the label (+1 stable, -1 fell) comes back in
 `info["label"]`. There is no task reward (the reward is 0): curiosity is the agent's business, so
@@ -22,10 +22,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from katana_curiosity.core.abstract_world import AbstractBlocksWorld
 
-from .abstract_world import AbstractBlocksWorld
-
-ENV_ID = "katana_curiosity/BlocksWorld-v0"
+ENV_ID = "katana_paper/BlocksWorld-v0"
 
 
 class BlocksWorldEnv(gym.Env):
@@ -105,6 +104,6 @@ def register() -> None:
     if ENV_ID not in gym.registry:
         gym.register(
             id=ENV_ID,
-            entry_point="katana_curiosity.core.gym_env:BlocksWorldEnv",
+            entry_point="katana_paper.gym_env:BlocksWorldEnv",
             max_episode_steps=10_000,  # the paper's run length
         )

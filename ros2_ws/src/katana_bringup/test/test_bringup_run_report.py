@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from katana_bringup.run_report import append_session, read_sessions, write_report
 from katana_curiosity.core.robot_loop import robot_bank
-from katana_curiosity.core.robot_report import append_session, read_sessions, write_report
 from katana_curiosity.core.run_record import (
     ExperienceLog,
     ExperimentRecord,

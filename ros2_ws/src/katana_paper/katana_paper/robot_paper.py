@@ -23,8 +23,8 @@ matplotlib.use("Agg")
 import cv2  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from katana_curiosity.core.predictors import PredictorBank, QueryRule, one_hot_with_bias  # noqa: E402
 
-from .predictors import PredictorBank, QueryRule, one_hot_with_bias  # noqa: E402
 from .robot_truth import TruthTable, kl_to_truth  # noqa: E402
 
 #: the paper's claim of a usable model "within about 30 interactions" (section 3.3)

@@ -4,7 +4,6 @@ import json
 
 import numpy as np
 import pytest
-from katana_curiosity.cli import main
 from katana_curiosity.core.abstract_world import AbstractBlocksWorld
 from katana_curiosity.core.environment import Setting
 from katana_curiosity.core.explorer import (
@@ -24,6 +23,7 @@ from katana_curiosity.core.strategies_baselines import (
     RMax,
     Variance,
 )
+from katana_paper.curiosity_cli import main
 
 
 def make(method: str, seed: int = 0, rule: QueryRule | None = None):

@@ -12,10 +12,9 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-
-from .predictors import PredictorBank  # noqa: E402
-from .robot_loop import robot_bank  # noqa: E402
-from .run_record import LOG_NAME, ExperienceLog, ExperimentRecord, replay  # noqa: E402
+from katana_curiosity.core.predictors import PredictorBank  # noqa: E402
+from katana_curiosity.core.robot_loop import robot_bank  # noqa: E402
+from katana_curiosity.core.run_record import LOG_NAME, ExperienceLog, ExperimentRecord, replay  # noqa: E402
 
 
 def summarise_run(records: list[ExperimentRecord], n_actions: int, max_height: int) -> dict:

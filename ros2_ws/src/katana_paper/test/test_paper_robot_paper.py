@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-from katana_curiosity.core import robot_paper as rp
-from katana_curiosity.core.metrics import bernoulli_kl
-from katana_curiosity.core.robot_truth import TruthTable
+from katana_paper import robot_paper as rp
+from katana_paper.metrics import bernoulli_kl
+from katana_paper.robot_truth import TruthTable
 
 
 @dataclass

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from katana_curiosity.core import fastpath
-from katana_curiosity.core.experiments import RunConfig, build_run, run
 from katana_curiosity.core.explorer import Explorer
+from katana_paper.experiments import RunConfig, build_run, run
 
 
 @settings(max_examples=40, deadline=None)
@@ -116,6 +116,6 @@ def test_fast_path_refuses_what_it_does_not_reproduce() -> None:
 
 
 def test_the_experiments_module_knows_which_methods_are_fast() -> None:
-    from katana_curiosity.core.experiments import FAST_METHOD_NAMES
+    from katana_paper.experiments import FAST_METHOD_NAMES
 
     assert set(FAST_METHOD_NAMES) == set(fastpath.FAST_METHODS)

@@ -12,9 +12,9 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from katana_curiosity.core.explorer import PLAN, QUERY  # noqa: E402
 
 from .experiments import RunResult  # noqa: E402
-from .explorer import PLAN, QUERY  # noqa: E402
 from .metrics import experience_histogram  # noqa: E402
 
 METHOD_LABELS = {

@@ -39,14 +39,13 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
+from katana_bringup.run import default_params_files, load_params
 from katana_common.cli_args import (
     non_negative_int,
     positive_int,
     positive_seconds,
     writable_folder,
 )
-
-from .run import default_params_files, load_params
 
 #: the curiosity node's default query rule on the robot (node_params), if graph.yaml sets none
 DEFAULT_ALPHA, DEFAULT_THETA = 1.0, 0.1
@@ -187,8 +186,9 @@ class GraphClient:
 
 
 def true_blocks(msg) -> list:
-    from katana_curiosity.core.robot_paper import TrueBlock
     from katana_description.models import lies_flat
+
+    from katana_paper.robot_paper import TrueBlock
 
     return [TrueBlock(b.id, b.pose.position.x, b.pose.position.y, b.pose.position.z,
                       int(b.level), lies_flat(b.pose.orientation.x, b.pose.orientation.y,
@@ -296,7 +296,7 @@ class TruthMeasurer:
 
     def trial(self, height: int, action: int) -> int | None:
         """One placement realising (height, action): +1 stayed, -1 fell, None not made."""
-        from katana_curiosity.core.robot_paper import placement_stayed
+        from katana_paper.robot_paper import placement_stayed
 
         self.last_skip = ""
         if not self._stack_intact(height):
@@ -334,11 +334,11 @@ class TruthMeasurer:
 
 
 def cmd_truth(args) -> int:
-    from katana_curiosity.core.robot_paper import truth_figure, truth_schedule
-    from katana_curiosity.core.robot_truth import TruthTable
+    from katana_bringup.run import build_nodes
+    from katana_bringup.testing import InProcessGraph
 
-    from .run import build_nodes
-    from .testing import InProcessGraph
+    from katana_paper.robot_paper import truth_figure, truth_schedule
+    from katana_paper.robot_truth import TruthTable
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -509,7 +509,7 @@ class ContactRecorder:
             latest = self.latest
         if not self.first <= msg.index < self.first + self.n or len(self.rows) >= self.n:
             return
-        from .demo import draw_placement
+        from katana_bringup.demo import draw_placement
 
         inst = msg.instance
         import cv2
@@ -621,7 +621,7 @@ def run_all(jobs: Sequence[tuple[str, int]], experiments: int, out: Path, parall
         if recorder is not None:
             recorder.close()
             if recorder.rows:
-                from katana_curiosity.core.robot_paper import contact_sheet
+                from katana_paper.robot_paper import contact_sheet
 
                 contact_sheet(recorder.rows, out / "contact_sheet.png")
     return codes
@@ -635,9 +635,10 @@ def query_rule() -> tuple[float, float]:
 def analyse(out: Path, jobs: Sequence[tuple[str, int]], truth_path: Path, experiments: int,
             seeds: Sequence[int]) -> dict:
     """summary.json, the per-run CSVs and the figures from the runs in out/runs."""
-    from katana_curiosity.core import robot_paper as rp
-    from katana_curiosity.core.robot_truth import TruthTable
     from katana_curiosity.core.run_record import LOG_NAME, ExperienceLog
+
+    from katana_paper import robot_paper as rp
+    from katana_paper.robot_truth import TruthTable
 
     truth = TruthTable.load(truth_path)
     alpha, theta = query_rule()
@@ -704,13 +705,12 @@ def cmd_paper(args) -> int:
 def skill_trials(model: str, goal_height: int, trials: int, seed: int, max_placements: int,
                  log=print) -> dict:
     """`trials` build_stack goals, each from the scatter reset_world(seed + k) makes."""
+    from katana_bringup.run import build_nodes, overrides_for
+    from katana_bringup.testing import InProcessGraph
     from katana_common.action_client import ActionClient
     from katana_curiosity.skill_node import SkillNode
     from katana_interfaces.action import BuildStack
     from rclpy.parameter import Parameter
-
-    from .run import build_nodes, overrides_for
-    from .testing import InProcessGraph
 
     params = graph_params(seed)
     params["skill_node"] = {"model": model}

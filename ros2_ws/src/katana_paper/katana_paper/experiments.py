@@ -12,11 +12,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from katana_curiosity.core.abstract_world import AbstractBlocksWorld
+from katana_curiosity.core.explorer import (
+    PLAN,
+    QUERY,
+    STRATEGIES,
+    Explorer,
+    Strategy,
+    make_strategy,
+)
+from katana_curiosity.core.predictors import PredictorBank, QueryRule
 
-from .abstract_world import AbstractBlocksWorld
-from .explorer import PLAN, QUERY, STRATEGIES, Explorer, Strategy, make_strategy
 from .metrics import cumulative_by_state, model_kl
-from .predictors import PredictorBank, QueryRule
 
 DEFAULT_METHODS = ("q1", "q10", "conf", "random")
 FAST_METHOD_NAMES = ("q1", "q10", "conf", "random")  # fastpath.FAST_METHODS, without numba
@@ -118,7 +125,7 @@ def run(
     world, bank, strategy = build_run(config)
     fast = None
     if engine != "reference":
-        from . import fastpath  # numba: imported only when a run uses it
+        from katana_curiosity.core import fastpath  # numba: imported only when a run uses it
 
         if config.method in fastpath.FAST_METHODS and fastpath.supports(world, bank):
             fast = fastpath.FastRun(
@@ -224,7 +231,7 @@ def run_many(
                 progress(results[i])
     else:
         if any(c.method in FAST_METHOD_NAMES for c in configs):
-            from .fastpath import warm_up
+            from katana_curiosity.core.fastpath import warm_up
 
             warm_up()  # load (or compile) once here: forked workers inherit the machine code
         with ProcessPoolExecutor(max_workers=jobs) as pool:

@@ -7,13 +7,13 @@ import json
 
 import numpy as np
 import pytest
-from katana_bringup import robot
 from katana_bringup.run import build_nodes
 from katana_bringup.testing import InProcessGraph
 from katana_common.testing import private_domain_id
 from katana_curiosity.core.robot_loop import robot_bank
-from katana_curiosity.core.robot_truth import TruthTable
 from katana_curiosity.core.run_record import CHECKPOINT_NAME, save_checkpoint
+from katana_paper import robot_cli as robot
+from katana_paper.robot_truth import TruthTable
 
 
 def _graph(seed: int, num_blocks: int | None = None) -> tuple[InProcessGraph, robot.GraphClient]:

@@ -1,0 +1,5 @@
+import sys
+
+from .curiosity_cli import main
+
+sys.exit(main())
