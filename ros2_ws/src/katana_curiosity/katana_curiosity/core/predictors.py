@@ -34,6 +34,12 @@ def exploration_horizon(examples: np.ndarray | int) -> np.ndarray | float:
     return np.log(2.0 + np.asarray(examples, dtype=float))
 
 
+#: The query condition's scale alpha and threshold theta, as the paper's section 3 states them:
+#: alpha = 1; theta = 0.01 for the simulated blocks world (section 3.2), 0.1 on the robot (3.3).
+ALPHA = 1.0
+THETA_ABSTRACT = 0.01
+THETA_ROBOT = 0.1
+
 # Called by PredictorBank.update for every learned example: (state, action, label, margin before).
 UpdateListener = Callable[[int, int, float, float], None]
 
@@ -42,8 +48,8 @@ UpdateListener = Callable[[int, int, float, float], None]
 class QueryRule:
     """Eq. 2: query when chi > |margin| and chi > theta, with chi = alpha sqrt(c h)."""
 
-    alpha: float = 1.0
-    theta: float = 0.01
+    alpha: float = ALPHA
+    theta: float = THETA_ABSTRACT
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.alpha) and self.alpha > 0.0):
