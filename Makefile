@@ -29,8 +29,9 @@ demo: setup
 paper: setup
 	@$(ENV) katana-curiosity paper --jobs $(JOBS) --out runs/paper
 
-# The robot experiment (issue 9): seeds x experiments x q1 and random on the fast sim, each run
-# its own graph and ROS domain, against the measured truth shipped in docs/.
+# The robot experiment (katana-robot paper): seeds x experiments x the strategies q1 and random
+# on the fast sim, each run its own graph and ROS domain, against the measured truth shipped in
+# docs/.
 ROBOT_SEEDS ?= 4
 ROBOT_EXPERIMENTS ?= 60
 ROBOT_DOMAIN ?= 40
@@ -38,11 +39,21 @@ ROBOT_DOMAIN ?= 40
 .PHONY: robot-paper
 robot-paper: setup
 	@$(ENV) katana-robot paper --seeds $(ROBOT_SEEDS) --experiments $(ROBOT_EXPERIMENTS) \
-		--methods q1,random --jobs $(JOBS) --domain-base $(ROBOT_DOMAIN) \
+		--strategies q1,random --jobs $(JOBS) --domain-base $(ROBOT_DOMAIN) \
 		--truth docs/robot_truth.json --out runs/robot-paper
 
 bench: setup
 	@$(ENV) python bench/run.py
+
+# The generated pages (docs/BENCHMARKS.md, docs/REPRODUCING.md, README.md's results block) from
+# the committed result files; docs-check exits 1 where a page is not what the files make. `test`
+# does not depend on them: its pytest run makes the same check (test_paper_docs_report).
+.PHONY: docs docs-check
+docs: setup
+	@$(ENV) python -m katana_paper.docs_report
+
+docs-check: setup
+	@$(ENV) python -m katana_paper.docs_report --check
 
 clean:
 	rm -rf build install log runs .pytest_cache

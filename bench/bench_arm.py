@@ -34,10 +34,26 @@ import time
 from pathlib import Path
 from typing import NamedTuple
 
+import numpy as np
+from geometry_msgs.msg import Pose
+from katana_bringup.in_process import InProcessGraph
+from katana_common.action_client import ActionClient
+from katana_description import models as m
+from katana_interfaces.action import PickAndPlace
+from katana_manipulation.core import pick_place as pp
+from katana_manipulation.core.pick_place import PickPlaceRequest
+from katana_manipulation.core.pick_place_types import SIM_MIN_SEGMENT_TIME_S
+from katana_manipulation.core.reach import pick_reach, place_reach
+from katana_manipulation.pick_place_executor import PickPlaceExecutor
+from katana_sim.core import PhysicsSim, SimConfig
+from katana_sim.sim_node import SimNode
+from rclpy.parameter import Parameter
+
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
+from physics_port import PhysicsPort  # noqa: E402  (tests/ is put on the path just above)
 
 RUNS = 64
 SEED = 0
@@ -69,9 +85,6 @@ def _sample_xy(rng, band, margin_m: float = 0.0) -> tuple[float, float]:
 
 def trials(n: int = RUNS, seed: int = SEED) -> list[Trial]:
     """Seeded trials, heights 0..3 in turn."""
-    import numpy as np
-    from katana_manipulation.core.reach import pick_reach, place_reach
-
     rng = np.random.default_rng(seed)
     out = []
     for i in range(n):
@@ -92,9 +105,6 @@ def trials(n: int = RUNS, seed: int = SEED) -> list[Trial]:
 
 def set_scene(sim, trial: Trial):
     """Teleport the blocks for `trial` and let them settle; returns the PickPlaceRequest."""
-    from katana_description import models as m
-    from katana_manipulation.core.pick_place import PickPlaceRequest
-
     sim.reset(trial.world_seed)
     ids = list(sim.blocks)
     size = sim.cfg.block_size
@@ -131,20 +141,18 @@ class PhysicsOnly:
     """The floor: the same trials' motions stepped in a PhysicsSim without ROS."""
 
     def __init__(self) -> None:
-        from katana_manipulation.core import pick_place as pp
-        from katana_sim.core import PhysicsSim, SimConfig
-        from physics_port import PhysicsPort
-
-        self.pp = pp
         self.sim = PhysicsSim(SimConfig(seed=SEED))
         self.port = PhysicsPort(self.sim)
-        self.planner = pp.PickPlacePlanner()
+        # the executor's setting on the sim (as in through_ros and sim.yaml), so that both
+        # paths run the same motions
+        self.planner = pp.PickPlacePlanner(
+            params=pp.PickPlaceParams(min_segment_time=SIM_MIN_SEGMENT_TIME_S))
 
     def __call__(self, trial: Trial) -> tuple[dict, float]:
         req, mover = set_scene(self.sim, trial)
         self.port.commanded = None
         t0, s0 = time.perf_counter(), self.sim.time
-        res = self.pp.execute_pick_place(req, self.port, self.planner)
+        res = pp.execute_pick_place(req, self.port, self.planner)
         wall = time.perf_counter() - t0
         out = {"height": trial.height, "success": res.success, "code": res.code,
                "message": res.message, "sim_s": self.sim.time - s0}
@@ -168,16 +176,6 @@ def physics_only(all_trials: list[Trial]) -> tuple[list[dict], list[float]]:
 def through_ros(all_trials: list[Trial], floor=None) -> tuple[list[dict], list[float], list]:
     """Each trial through the action; `floor(trial)`, when given, runs just before each one, so
     that both see the same machine load (a shared 2-core machine)."""
-    import rclpy
-    from geometry_msgs.msg import Pose
-    from katana_bringup.testing import InProcessGraph
-    from katana_common.action_client import ActionClient
-    from katana_description import models as m
-    from katana_interfaces.action import PickAndPlace
-    from katana_manipulation.pick_place_executor import PickPlaceExecutor
-    from katana_sim.sim_node import SimNode
-    from rclpy.parameter import Parameter
-
     def pose(xyz, yaw) -> Pose:
         p = Pose()
         p.position.x, p.position.y, p.position.z = (float(v) for v in xyz)
@@ -194,7 +192,8 @@ def through_ros(all_trials: list[Trial], floor=None) -> tuple[list[dict], list[f
             Parameter("real_time_factor", value=0.0), Parameter("seed", value=SEED),
             Parameter("use_sim_time", value=True)])
         executor = PickPlaceExecutor(context=g.context, parameter_overrides=[  # as sim.yaml
-            Parameter("use_sim_time", value=True), Parameter("min_segment_time_s", value=0.1)])
+            Parameter("use_sim_time", value=True),
+            Parameter("min_segment_time_s", value=SIM_MIN_SEGMENT_TIME_S)])
         g.add(sim, executor)
         client = ActionClient(g.node("bench_arm_probe"), PickAndPlace, "pick_and_place")
         assert client.wait_for_server(timeout_sec=10.0)
@@ -219,13 +218,10 @@ def through_ros(all_trials: list[Trial], floor=None) -> tuple[list[dict], list[f
                 with sim.lock:
                     out.update(judge(sim.world, trial, mover, req.place))
             outcomes.append(out)
-    del rclpy
     return outcomes, walls, floors
 
 
 def summarize(outcomes: list[dict]) -> dict:
-    import numpy as np
-
     errors = [o["error_mm"] for o in outcomes if o.get("stayed")]
     stable = {}
     for h in (1, 2, 3):

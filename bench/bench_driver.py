@@ -15,11 +15,27 @@ cleared) succeeded. Targets: 0 duplicated segments and max_speed_ratio <= 1.05 f
 
 from __future__ import annotations
 
+import json
 import os
+import signal
 import statistics
+import subprocess
+import sys
 import time
 
+from katana_bringup.in_process import InProcessGraph
+from katana_common.action_client import ActionClient
+from katana_common.messages import to_seconds
 from katana_common.testing import private_ros_env
+from katana_driver.core import protocol
+from katana_driver.core.client import KatanaClient
+from katana_driver.core.transport import SerialTransport, TcpTransport
+from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
+from katana_driver.katana_driver_node import KatanaDriverNode
+from katana_driver.testing import FAULTS, POSE_B, FaultBench, trajectory
+from katana_interfaces.action import FollowJointTrajectory
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
 
@@ -39,39 +55,17 @@ def _rate(times: list[float]) -> float:
 
 def _state_rates(host: str, port: int) -> dict:
     """joint_states rates, idle and during a 4 s trajectory, with the shipped poll_rate."""
-    import threading
-
-    import rclpy
-    from katana_common.conversions import to_seconds
-    from katana_common.executor import MultiThreadedExecutor
-    from katana_driver.testing import POSE_B, trajectory
-    from rclpy.node import Node
-    from sensor_msgs.msg import JointState
-
-    ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
-    from katana_driver.katana_driver_node import KatanaDriverNode
-    from rclpy.parameter import Parameter
-
-    node = KatanaDriverNode(node_name="bench_katana_driver", context=ctx,
-                            parameter_overrides=[Parameter("host", value=host),
-                                                 Parameter("port", value=port)])
-    probe = Node("bench_driver_probe", context=ctx)
-    got: list[tuple[float, float]] = []  # (header stamp, arrival)
-    probe.create_subscription(
-        JointState, "joint_states",
-        lambda m: got.append((to_seconds(m.header.stamp), time.monotonic())), 100)
-    from katana_common.action_client import ActionClient
-    from katana_interfaces.action import FollowJointTrajectory
-
-    arm = ActionClient(probe, FollowJointTrajectory, "arm_controller/follow_joint_trajectory")
-    executor = MultiThreadedExecutor(num_threads=4, context=ctx)
-    executor.add_node(node)
-    executor.add_node(probe)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
-    out = {}
-    try:
+    with InProcessGraph(threads=4) as g:
+        node = KatanaDriverNode(node_name="bench_katana_driver", context=g.context,
+                                parameter_overrides=[Parameter("host", value=host),
+                                                     Parameter("port", value=port)])
+        g.add(node)
+        probe = g.node("bench_driver_probe")
+        got: list[tuple[float, float]] = []  # (header stamp, arrival)
+        probe.create_subscription(
+            JointState, "joint_states",
+            lambda m: got.append((to_seconds(m.header.stamp), time.monotonic())), 100)
+        arm = ActionClient(probe, FollowJointTrajectory, "arm_controller/follow_joint_trajectory")
         deadline = time.monotonic() + 15.0
         while time.monotonic() < deadline and not (node.worker.ready and arm.server_is_ready()):
             time.sleep(0.05)
@@ -90,23 +84,13 @@ def _state_rates(host: str, port: int) -> dict:
             "state_hz_moving_from_stamps": round(_rate([s for s, _ in moving]), 2),
         }
         del done
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        probe.destroy_node()
-        rclpy.shutdown(context=ctx)
     return out
 
 
 def _shutdown_times() -> dict:
     """Seconds from SIGINT / SIGTERM to the exit of a separate driver process (idle, and mid
-    trajectory) and of a camera_node process. Target (issue 10): <= 2 s."""
-    import signal
-    import subprocess
-    import sys
-
-    from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
-
+    trajectory) and of a camera_node process. Target: <= 2 s (docs/hardware.md: a signal ends
+    the node within 2 s)."""
     env = private_ros_env(PYTHONUNBUFFERED="1")
     goal = ("import rclpy\nfrom katana_driver.testing import POSE_B, trajectory\n"
             "from katana_interfaces.action import FollowJointTrajectory as F\n"
@@ -156,8 +140,6 @@ def _shutdown_times() -> dict:
 
 
 def _faults() -> dict:
-    from katana_driver.testing import FAULTS, FaultBench
-
     results = {}
     for name in FAULTS:
         bench = FaultBench(timeout_s=0.5, retries=3)
@@ -169,11 +151,6 @@ def _faults() -> dict:
 
 
 def run() -> dict:
-    from katana_driver.core import protocol
-    from katana_driver.core.client import KatanaClient
-    from katana_driver.core.transport import SerialTransport, TcpTransport
-    from katana_driver.emulator import KatanaEmulator, KatanaModel
-
     emulator = KatanaEmulator(KatanaModel(calibrated=True))
     host, port = emulator.serve_tcp("127.0.0.1", 0)
     device = emulator.serve_pty()
@@ -214,6 +191,4 @@ def run() -> dict:
 
 
 if __name__ == "__main__":
-    import json
-
     print(json.dumps(run(), indent=2))

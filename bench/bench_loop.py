@@ -22,6 +22,13 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+from katana_bringup import demo
+from katana_bringup.run import default_params_files, load_params
+from katana_perception.core.fovea import FoveaScene
+from katana_perception.core.judge import Judge
+from katana_perception.core.segmentation import Segmenter
+from katana_sim.core.physics import PhysicsSim
+
 EXPERIMENTS = 31  # 30 gaps between consecutive logged experiments
 TARGETS = {"s_per_experiment": 1.0, "dropped_fraction": 0.1}
 
@@ -61,11 +68,6 @@ class Meter:
 
 
 def _instrument(meter: Meter) -> None:
-    from katana_perception.core.fovea import FoveaScene
-    from katana_perception.core.judge import Judge
-    from katana_perception.core.segmentation import Segmenter
-    from katana_sim.core.physics import PhysicsSim
-
     meter.wrap(PhysicsSim, "step", "physics")
     meter.wrap(PhysicsSim, "_raw_render", "render")  # images drawn (a still scene's are not)
     meter.wrap(Segmenter, "segment", "segment")
@@ -80,13 +82,11 @@ def _median(values: list[float]) -> float | None:
     return round(statistics.median(values), 4) if values else None
 
 
-def run() -> dict:
-    from katana_bringup import demo
-    from katana_bringup.run import default_params_files, load_params
+KINDS = ("physics", "render", "segment", "judge", "fovea")
 
-    camera_rate_hz = load_params(default_params_files("sim"))["sim_node"]["camera_rate"]
 
-    meter = Meter()
+def _demo_run(meter: Meter) -> tuple[list[dict], dict, float]:
+    """katana-demo in this process with `meter` on: the logged records, the summary, wall s."""
     _instrument(meter)
     try:
         with tempfile.TemporaryDirectory() as tmp:
@@ -102,39 +102,61 @@ def run() -> dict:
             summary = json.loads((out / "summary.json").read_text())
     finally:
         meter.restore()
+    return records, summary, wall
 
-    times = [r["wall_time"] for r in records]
-    gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
-    # the floor of each window (previous experiment logged, this one logged]
+
+def _windows(times: list[float], events: list[tuple[float, float, str]]):
+    """Per window (previous experiment logged, this one logged]: the seconds of each kind of
+    work, and the renders and segmentations in it."""
     floors: list[dict[str, float]] = []
     renders: list[int] = []
     segments: list[int] = []
     for a, b in zip(times, times[1:], strict=False):
         sums: dict[str, float] = defaultdict(float)
-        for end, seconds, kind in meter.events:
+        for end, seconds, kind in events:
             if a < end <= b:
                 sums[kind] += seconds
         floors.append(dict(sums))
-        renders.append(sum(1 for end, _, kind in meter.events if kind == "render" and a < end <= b))
-        segments.append(sum(1 for end, _, kind in meter.events
+        renders.append(sum(1 for end, _, kind in events if kind == "render" and a < end <= b))
+        segments.append(sum(1 for end, _, kind in events
                             if kind == "segment" and a < end <= b))
-    floor_totals = [sum(f.values()) for f in floors]
-    # the same with only the two images an experiment needs (after parking, for the judge;
-    # after the experience, for the memory): the cost of the images nobody needed
-    two_images = [
+    return floors, renders, segments
+
+
+def _two_images(floors: list[dict], renders: list[int], segments: list[int]) -> list[float]:
+    """The floor with only the two images an experiment needs (after parking, for the judge;
+    after the experience, for the memory): the cost of the images nobody needed."""
+    return [
         f.get("physics", 0.0) + f.get("fovea", 0.0) + f.get("judge", 0.0)
         + f.get("render", 0.0) * min(1.0, 2.0 / max(n, 1))
         + f.get("segment", 0.0) * min(1.0, 2.0 / max(k, 1))
         for f, n, k in zip(floors, renders, segments, strict=True)]
-    kinds = ("physics", "render", "segment", "judge", "fovea")
+
+
+NOTES = (f"katana-demo --experiments {EXPERIMENTS} --seed 0 in this process (sim at "
+         "real_time_factor 0, every node in one process, headless); s_per_experiment "
+         "is the median wall time between consecutive logged experiments (dropped "
+         "attempts included); stage figures are medians of what the curiosity node "
+         "logged; experiment_floor_s is the median per window of the time inside "
+         "physics steps, renders, segmentation, the judge and the fovea; "
+         "experiment_floor_two_images_s counts only the two camera images an "
+         "experiment needs (renders and segmentation scaled to 2 per window).")
+
+
+def run() -> dict:
+    camera_rate_hz = load_params(default_params_files("sim"))["sim_node"]["camera_rate"]
+    meter = Meter()
+    records, summary, wall = _demo_run(meter)
+    times = [r["wall_time"] for r in records]
+    gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
+    floors, renders, segments = _windows(times, meter.events)
 
     def stage(name: str) -> list[float]:
         return [r["stage_s"][name] for r in records[1:] if name in r.get("stage_s", {})]
 
     stage_names = sorted({k for r in records for k in r.get("stage_s", {})})
     s_per = _median(gaps)
-    floor = _median(floor_totals)
-    dropped = summary.get("dropped_experiments", {})
+    floor = _median([sum(f.values()) for f in floors])
     return {
         "experiments": len(records),
         "s_per_experiment": s_per,
@@ -143,25 +165,18 @@ def run() -> dict:
         "between_experiments_s": _median([g - r["stage_s"].get("experiment_s", 0.0)
                                           for g, r in zip(gaps, records[1:], strict=True)]),
         "experiment_floor_s": floor,
-        "experiment_floor_two_images_s": _median(two_images),
-        "floor_median_s": {k: _median([f.get(k, 0.0) for f in floors]) for k in kinds},
+        "experiment_floor_two_images_s": _median(_two_images(floors, renders, segments)),
+        "floor_median_s": {k: _median([f.get(k, 0.0) for f in floors]) for k in KINDS},
         "overhead_ratio": round(s_per / floor, 2) if s_per and floor else None,
         "renders_per_experiment": _median([float(n) for n in renders]),
         "segmentations_per_experiment": _median([float(n) for n in segments]),
         "camera_rate_hz": camera_rate_hz,
-        "dropped_experiments": dropped,
+        "dropped_experiments": summary.get("dropped_experiments", {}),
         "highest_stack": summary["highest_stack"],
         "heights_explored": summary["heights_explored"],
         "run_wall_s": round(wall, 1),
         "targets": TARGETS,
-        "notes": f"katana-demo --experiments {EXPERIMENTS} --seed 0 in this process (sim at "
-                 "real_time_factor 0, every node in one process, headless); s_per_experiment "
-                 "is the median wall time between consecutive logged experiments (dropped "
-                 "attempts included); stage figures are medians of what the curiosity node "
-                 "logged; experiment_floor_s is the median per window of the time inside "
-                 "physics steps, renders, segmentation, the judge and the fovea; "
-                 "experiment_floor_two_images_s counts only the two camera images an "
-                 "experiment needs (renders and segmentation scaled to 2 per window).",
+        "notes": NOTES,
     }
 
 

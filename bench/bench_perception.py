@@ -13,12 +13,17 @@ import time
 from pathlib import Path
 
 import cv2
+from katana_bringup.recording import McapRecording
+from katana_manipulation.core import reach
 from katana_perception.core.calibration import Calibration
 from katana_perception.core.fovea import FoveaScene
 from katana_perception.core.judge import Judge, Placement
 from katana_perception.core.memory import Block
 from katana_perception.core.segmentation import Segmenter
 from katana_perception.core.synthetic import Renderer, stack_block
+from katana_perception.messages import rgb_to_image
+from rclpy.serialization import serialize_message
+from std_msgs.msg import Header
 
 
 def _median_ms(fn, repeat: int, warmup: int = 3) -> float:
@@ -36,7 +41,7 @@ def _frames():
     """Frames of four blocks before and after red is put on a stack of two, and the memory
     of the before scene: from the PyBullet sim when installed, else the synthetic renderer."""
     try:
-        from katana_sim.core import PhysicsSim, SimConfig
+        from katana_sim.core import PhysicsSim, SimConfig  # optional: PyBullet may be missing
     except ImportError:
         calib = Calibration.overhead_default()
         before = [stack_block("red", 0.17, 0.09, 1, 0.2), stack_block("green", 0.26, -0.1, 1),
@@ -64,8 +69,6 @@ def _frames():
 
 def _reach_table_ms() -> float:
     """place_reach for heights 0..3 from the kinematics, uncached: fovea_node's start-up cost."""
-    from katana_manipulation.core import reach
-
     def once() -> None:
         reach.place_reach.cache_clear()
         reach.place_reach_table(3)
@@ -75,11 +78,6 @@ def _reach_table_ms() -> float:
 
 def _record_frame_ms(rgb) -> float:
     """One 640x480 camera frame serialized and written (and flushed) into an MCAP recording."""
-    from katana_bringup.recording import McapRecording
-    from katana_perception.conversions import rgb_to_image
-    from rclpy.serialization import serialize_message
-    from std_msgs.msg import Header
-
     msg = rgb_to_image(rgb, Header(frame_id="camera_optical_frame"))
     with tempfile.TemporaryDirectory() as folder:
         rec = McapRecording(Path(folder) / "bench.mcap")

@@ -11,20 +11,27 @@ from __future__ import annotations
 import json
 import os
 import statistics
-import sys
 import time
 from pathlib import Path
+
+import numpy as np
+from katana_bringup.in_process import InProcessGraph
+from katana_common.action_client import ActionClient
+from katana_description import models as m
+from katana_interfaces.action import PickAndPlace
+from katana_manipulation.core.pick_place import PickPlacePlanner, PickPlaceRequest, PlanError
+from katana_manipulation.core.pick_place_types import SIM_MIN_SEGMENT_TIME_S, PickPlaceParams
+from katana_manipulation.pick_place_executor import PickPlaceExecutor
+from katana_sim.core import PhysicsSim, SimConfig, TrajectoryGoal
+from katana_sim.sim_node import SimNode
+from rclpy.parameter import Parameter
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
 
 ROOT = Path(__file__).resolve().parents[1]
-for pkg in ("katana_description", "katana_sim", "katana_manipulation", "katana_bringup"):
-    sys.path.insert(0, str(ROOT / "ros2_ws" / "src" / pkg))
 
 
 def bench_render(frames: int = 30) -> float:
-    from katana_sim.core import PhysicsSim, SimConfig
-
     world = PhysicsSim(SimConfig(seed=1))
     try:
         world.render(fresh=True)  # warm-up
@@ -38,10 +45,6 @@ def bench_render(frames: int = 30) -> float:
 
 def bench_physics(sim_seconds: float = 20.0) -> float:
     """Simulated seconds per wall second with the arm sweeping back and forth (no rendering)."""
-    import numpy as np
-    from katana_description import models as m
-    from katana_sim.core import PhysicsSim, SimConfig, TrajectoryGoal
-
     world = PhysicsSim(SimConfig(seed=1))
     try:
         a = list(m.PARK_POSE)
@@ -65,22 +68,15 @@ def bench_pick_place(runs: int = 5) -> tuple[float, float, int]:
     """Median wall seconds of one pick-and-place through the action (sim_node and
     pick_place_executor in one process, the fast lock-step sim), its sim/wall speed, and how many
     succeeded."""
-    from katana_bringup.testing import InProcessGraph
-    from katana_common.action_client import ActionClient
-    from katana_interfaces.action import PickAndPlace
-    from katana_manipulation.core.pick_place import PickPlacePlanner, PickPlaceRequest, PlanError
-    from katana_manipulation.pick_place_executor import PickPlaceExecutor
-    from katana_sim.sim_node import SimNode
-    from rclpy.parameter import Parameter
-
-    planner = PickPlacePlanner()
+    planner = PickPlacePlanner(params=PickPlaceParams(min_segment_time=SIM_MIN_SEGMENT_TIME_S))
     walls, speeds, ok = [], [], 0
     with InProcessGraph() as g:
         sim = SimNode(context=g.context, parameter_overrides=[
             Parameter("real_time_factor", value=0.0), Parameter("seed", value=0),
             Parameter("use_sim_time", value=True)])
         g.add(sim, PickPlaceExecutor(context=g.context, parameter_overrides=[  # as sim.yaml
-            Parameter("use_sim_time", value=True), Parameter("min_segment_time_s", value=0.1)]))
+            Parameter("use_sim_time", value=True),
+            Parameter("min_segment_time_s", value=SIM_MIN_SEGMENT_TIME_S)]))
         probe = g.node("bench_sim_probe")
         client = ActionClient(probe, PickAndPlace, "pick_and_place")
         assert client.wait_for_server(timeout_sec=10.0)

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from contextlib import nullcontext
 
+from katana_description import arm_contract as ac
 from katana_description import models as m
 from katana_manipulation.core.pick_place import GripResult, MoveResult
 from katana_sim.core import TrajectoryGoal
-from katana_sim.core import controllers as ctl
 from katana_sim.core.pacing import DONE, run_motion
 
 
@@ -27,7 +27,7 @@ class PhysicsPort:
             self.sim.cancel_trajectory("timeout")
             return MoveResult(False, "no outcome in time", timed_out=True)
         out = handle.outcome
-        ok = out.status == ctl.SUCCEEDED
+        ok = out.status == ac.SUCCEEDED
         self.commanded = [float(v) for v in points[-1]] if ok else None
         return MoveResult(ok, out.message)
 
@@ -37,7 +37,7 @@ class PhysicsPort:
             self.sim.cancel_gripper()
             return GripResult(False, message="no outcome in time", timed_out=True)
         out = handle.outcome
-        return GripResult(out.status == ctl.SUCCEEDED, out.position, out.stalled,
+        return GripResult(out.status == ac.SUCCEEDED, out.position, out.stalled,
                           out.reached_goal, out.message)
 
     def joint_positions(self) -> dict[str, float] | None:

@@ -1,4 +1,4 @@
-"""The fast sim is deterministic under a seed at the arm level (issue 8 §2): the same goals sent
+"""The fast sim is deterministic under a seed at the arm level: the same goals sent
 to two fresh graphs (sim_node at real_time_factor 0 + pick_place_executor, one process each
 time) give the same results and the same world, to the last bit of every block pose, although
 thread timing differs between the runs. Physics is lock-stepped with the motions it serves,
@@ -10,9 +10,10 @@ import math
 import time
 
 from geometry_msgs.msg import Pose
-from katana_bringup.testing import InProcessGraph
+from katana_bringup.in_process import InProcessGraph
 from katana_common.action_client import ActionClient
 from katana_interfaces.action import PickAndPlace
+from katana_manipulation.core.pick_place_types import SIM_MIN_SEGMENT_TIME_S
 from katana_manipulation.pick_place_executor import PickPlaceExecutor
 from katana_sim.sim_node import SimNode
 from rclpy.parameter import Parameter
@@ -33,7 +34,8 @@ def _episode(pause_s: float) -> tuple[list, list]:
             Parameter("real_time_factor", value=0.0), Parameter("seed", value=11),
             Parameter("use_sim_time", value=True), Parameter("camera_rate", value=20.0)])
         executor = PickPlaceExecutor(context=g.context, parameter_overrides=[
-            Parameter("use_sim_time", value=True), Parameter("min_segment_time_s", value=0.1)])
+            Parameter("use_sim_time", value=True),
+            Parameter("min_segment_time_s", value=SIM_MIN_SEGMENT_TIME_S)])
         g.add(sim, executor)
         client = ActionClient(g.node("determinism_probe"), PickAndPlace, "pick_and_place")
         assert client.wait_for_server(timeout_sec=10.0)

@@ -1,14 +1,13 @@
 """pick_place_executor drives the EMULATED arm through the driver's actions (a whole-graph test:
 katana_driver and katana_manipulation together), also with spline replies delayed 0.6 s."""
 
-import time
-
 import pytest
 import rclpy
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Pose, Vector3
 from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
+from katana_common.testing import spin_until
 from katana_description import models
 from katana_driver.core.encoders import ARM_JOINTS, EncoderModel
 from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
@@ -41,8 +40,9 @@ def pose(x, y, z):
 
 @pytest.mark.parametrize("spline_latency_s", [0.0, 0.6], ids=["prompt", "spline_replies_late"])
 def test_executor_picks_and_places_on_the_emulated_arm(emulator, spline_latency_s):
-    """With replies to spline commands 0.6 s late (past the driver's 0.5 s timeout) the driver
-    once re-sent segments, the arm jumped and ended 0.17 rad from the goal."""
+    """Also with replies to spline commands 0.6 s late (past the driver's 0.5 s timeout): a
+    driver that re-sends a segment then makes the arm jump (it ended 0.17 rad from the goal),
+    so no segment may arrive twice and the arm must end parked."""
     # A 4 cm block between the fingers: the emulated gripper stalls where a block holds it.
     block_angle = models.finger_angle_for_opening(0.04)
     emulator.model.gripper_stall_at = int(EncoderModel.gripper_angle_to_encoder(block_angle))
@@ -61,30 +61,24 @@ def test_executor_picks_and_places_on_the_emulated_arm(emulator, spline_latency_
     for node in (driver, executor_node, client_node):
         executor.add_node(node)
 
-    def spin_until(predicate, limit_s):
-        deadline = time.monotonic() + limit_s
-        while time.monotonic() < deadline and not predicate():
-            executor.spin_once(timeout_sec=0.05)
-        return predicate()
-
     try:
-        assert spin_until(lambda: driver.worker.ready and client.server_is_ready(), 15.0)
+        assert spin_until(executor, lambda: driver.worker.ready and client.server_is_ready(), 15.0)
         # Fresh from calibration every motor sits on its stop, where the executor's inverse
         # kinematics refuses to start; park first, as the experiment does.
         park = list(executor_node.planner.p.park_pose)
         arm = ActionClient(
             client_node, FollowJointTrajectory, "arm_controller/follow_joint_trajectory"
         )
-        assert spin_until(arm.server_is_ready, 5.0)
+        assert spin_until(executor, arm.server_is_ready, 5.0)
         to_park = FollowJointTrajectory.Goal()
         to_park.trajectory.joint_names = list(ARM_JOINTS)
         to_park.trajectory.points = [
             JointTrajectoryPoint(positions=park, time_from_start=Duration(sec=4))
         ]
         parked = arm.send_goal_async(to_park)
-        assert spin_until(parked.done, 5.0)
+        assert spin_until(executor, parked.done, 5.0)
         parked_result = parked.result().get_result_async()
-        assert spin_until(parked_result.done, 15.0)
+        assert spin_until(executor, parked_result.done, 15.0)
         assert parked_result.result().status == GoalStatus.STATUS_SUCCEEDED
         emulator.model.reset_counters()
         emulator.faults.spline_latency_s = spline_latency_s
@@ -98,9 +92,9 @@ def test_executor_picks_and_places_on_the_emulated_arm(emulator, spline_latency_
         sent = client.send_goal_async(
             goal, feedback_callback=lambda f: phases.append(f.feedback.phase)
         )
-        assert spin_until(sent.done, 10.0) and sent.result().accepted
+        assert spin_until(executor, sent.done, 10.0) and sent.result().accepted
         result = sent.result().get_result_async()
-        assert spin_until(result.done, 100.0)
+        assert spin_until(executor, result.done, 100.0)
         res = result.result()
         assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.message
         assert res.result.success

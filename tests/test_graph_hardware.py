@@ -17,7 +17,6 @@ from katana_description import models
 from katana_driver.core.encoders import EncoderModel
 from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
 from katana_interfaces.msg import LearnerState
-from rclpy.action import get_action_names_and_types
 from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import Image, JointState
 
@@ -51,7 +50,7 @@ def emulator():
 
 
 def test_hardware_graph_starts_against_the_emulator_and_a_substitute_camera(
-        ros_graph, emulator, tmp_path):
+        ros_graph, graph_offers, emulator, tmp_path):
     host, port = emulator.address
     params = load_params(default_params_files("hardware"))
     params["katana_driver_node"] = {"host": host, "port": port}
@@ -76,14 +75,8 @@ def test_hardware_graph_starts_against_the_emulator_and_a_substitute_camera(
     g.wait_for(lambda: joints and images and learner, timeout=30.0)
     assert len(joints[-1].name) == 7, "five arm joints and two fingers, as from the sim"
     assert (images[-1].width, images[-1].height, images[-1].encoding) == (640, 480, "rgb8")
-    actions = g.wait_for(lambda: dict(get_action_names_and_types(probe)).keys()
-                         >= EXPECTED_ACTIONS.keys() and dict(get_action_names_and_types(probe)))
-    for name, kind in EXPECTED_ACTIONS.items():
-        assert actions[name] == [kind], name
-    services = g.wait_for(lambda: dict(probe.get_service_names_and_types()).keys()
-                          >= EXPECTED_SERVICES.keys() and dict(probe.get_service_names_and_types()))
-    for name, kind in EXPECTED_SERVICES.items():
-        assert services[name] == [kind], name
+    graph_offers(g, probe, "actions", EXPECTED_ACTIONS)
+    graph_offers(g, probe, "services", EXPECTED_SERVICES)
     # the emulated controller is being talked to: the driver calibrated it
     driver = next(n for n in nodes if n.get_name() == "katana_driver_node")
     g.wait_for(lambda: driver.worker.ready, timeout=30.0)

@@ -1,4 +1,4 @@
-"""The paper's whole loop on the simulated arm, every node in one process (issue: perception,
+"""The paper's whole loop on the simulated arm, every node in one process (perception,
 memory, fovea and curiosity): experiments are learned and logged once each, a restart resumes,
 and bad input is refused while the run goes on."""
 
@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+from katana_bringup.in_process import InProcessGraph
 from katana_bringup.run import build_nodes, default_params_files, load_params
 from katana_common.action_client import ActionClient
 from katana_common.qos import SENSOR_QOS, STATE_QOS
@@ -43,8 +44,6 @@ def log_records(run_dir) -> list[dict]:
 
 
 def test_experiments_are_learned_logged_once_and_a_restart_resumes(tmp_path):
-    from katana_bringup.testing import InProcessGraph
-
     with InProcessGraph() as g:
         learner, _, seen, states = run_loop(g, tmp_path, experiments=3)
         g.wait_for(learner.finished.is_set, timeout=150.0)
@@ -76,8 +75,6 @@ def test_experiments_are_learned_logged_once_and_a_restart_resumes(tmp_path):
 
 
 def test_bad_input_is_refused_and_the_run_goes_on(tmp_path):
-    from katana_bringup.testing import InProcessGraph
-
     with InProcessGraph() as g:
         learner, probe, seen, _ = run_loop(g, tmp_path, experiments=3)
         g.wait_for(lambda: len(seen) >= 1, timeout=120.0)
@@ -131,8 +128,6 @@ def test_two_fast_sim_runs_with_one_seed_write_the_same_log(tmp_path):
     """Deterministic under a seed: settings, choices, instances, blocks moved, labels and
     dropped attempts are the same in two runs (the sim steps in lock-step with the motions,
     the loop makes no choice by the clock)."""
-    from katana_bringup.testing import InProcessGraph
-
     logs = []
     for run in ("first", "second"):
         with InProcessGraph() as g:

@@ -8,11 +8,10 @@ import math
 
 from katana_bringup.run import build_nodes, default_params_files, load_params
 from katana_common.action_client import ActionClient
-from katana_common.conversions import to_seconds
+from katana_common.messages import to_seconds
 from katana_common.qos import CLOCK_QOS
 from katana_interfaces.action import PickAndPlace
 from katana_interfaces.msg import BlockArray
-from rclpy.action import get_action_names_and_types
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from rosgraph_msgs.msg import Clock
 
@@ -37,7 +36,18 @@ def _sim_params(**sim):
     return params
 
 
-def test_graph_matches_design_and_stacks_a_block(ros_graph):
+def _red_on_blue(blocks: dict) -> PickAndPlace.Goal:
+    """Pick the red block and place it squarely on the blue one (ground-truth Blocks by id)."""
+    red, blue = blocks["red"], blocks["blue"]
+    goal = PickAndPlace.Goal(block_id="red", pick=red.pose, block_size=red.size)
+    goal.place.position.x = blue.pose.position.x
+    goal.place.position.y = blue.pose.position.y
+    goal.place.position.z = blue.pose.position.z + blue.size.z
+    goal.place.orientation = blue.pose.orientation
+    return goal
+
+
+def test_graph_matches_design_and_stacks_a_block(ros_graph, graph_offers):
     g = ros_graph
     g.add(*build_nodes("sim", _sim_params(real_time_factor=0.0, seed=3), g.context,
                        layers=["arm"]))
@@ -51,32 +61,16 @@ def test_graph_matches_design_and_stacks_a_block(ros_graph):
                        <= set(probe.get_node_names()) and set(probe.get_node_names()))
     assert {"sim_node", "pick_place_executor"} <= names
 
-    def topics():
-        found = dict(probe.get_topic_names_and_types())
-        return all(t in found for t in EXPECTED_TOPICS) and found
-
-    found = g.wait_for(topics)
-    for topic, kind in EXPECTED_TOPICS.items():
-        assert found[topic] == [kind], topic
-    actions = g.wait_for(lambda: dict(get_action_names_and_types(probe)).keys()
-                         >= EXPECTED_ACTIONS.keys() and dict(get_action_names_and_types(probe)))
-    for name, kind in EXPECTED_ACTIONS.items():
-        assert actions[name] == [kind], name
-    services = g.wait_for(lambda: dict(probe.get_service_names_and_types()).keys()
-                          >= EXPECTED_SERVICES.keys() and dict(probe.get_service_names_and_types()))
-    for name, kind in EXPECTED_SERVICES.items():
-        assert services[name] == [kind]
+    graph_offers(g, probe, "topics", EXPECTED_TOPICS)
+    graph_offers(g, probe, "actions", EXPECTED_ACTIONS)
+    graph_offers(g, probe, "services", EXPECTED_SERVICES)
     # who subscribes joint_states: the executor (it reads the arm only through it and actions)
     subs = {i.node_name for i in probe.get_subscriptions_info_by_topic("/joint_states")}
     assert "pick_place_executor" in subs
 
     blocks = {b.id: b for b in g.wait_for(lambda: truth.get("last")).blocks}
-    red, blue = blocks["red"], blocks["blue"]
-    goal = PickAndPlace.Goal(block_id="red", pick=red.pose, block_size=red.size)
-    goal.place.position.x = blue.pose.position.x
-    goal.place.position.y = blue.pose.position.y
-    goal.place.position.z = blue.pose.position.z + blue.size.z
-    goal.place.orientation = blue.pose.orientation
+    blue = blocks["blue"]
+    goal = _red_on_blue(blocks)
     client = ActionClient(probe, PickAndPlace, "pick_and_place")
     assert client.wait_for_server(timeout_sec=5.0)
     phases: list[str] = []
@@ -119,13 +113,7 @@ def test_block_memory_follows_a_hand_sent_pick_and_place_on_sim_time(ros_graph):
     # memory/blocks carries the image's sim-time stamp, within a second of /clock
     stamp = to_seconds(memory[-1].header.stamp)
     assert 0.0 < stamp and abs(to_seconds(clock[-1]) - stamp) < 1.0
-    blocks = {b.id: b for b in truth["last"].blocks}
-    red, blue = blocks["red"], blocks["blue"]
-    goal = PickAndPlace.Goal(block_id="red", pick=red.pose, block_size=red.size)
-    goal.place.position.x = blue.pose.position.x
-    goal.place.position.y = blue.pose.position.y
-    goal.place.position.z = blue.pose.position.z + blue.size.z
-    goal.place.orientation = blue.pose.orientation
+    goal = _red_on_blue({b.id: b for b in truth["last"].blocks})
     client = ActionClient(probe, PickAndPlace, "pick_and_place")
     assert client.wait_for_server(timeout_sec=5.0)
     handle = g.result(client.send_goal_async(goal))

@@ -14,6 +14,6 @@ setup(
     zip_safe=True,
     maintainer="Katana curiosity maintainers",
     maintainer_email="katana-curiosity@example.org",
-    description="What every Katana node shares: parameters, the node runner, QoS, conversions.",
+    description="What every Katana node shares: parameters, the node runner, QoS, messages.",
     license="Apache-2.0",
 )

@@ -37,7 +37,7 @@ TOPICS = (
     ("curiosity/markers", MarkerArray, "visualization_msgs/msg/MarkerArray", EVENT_QOS, False),
 )
 
-SPECS = (
+PARAMS = (
     Param("path", "run.mcap", "The MCAP file to write (read-only).", nonempty=True),
     Param("image_rate_hz", 2.0, "Images (and camera_info) recorded per second of the node's "
           "clock, at most; 0 records none (live).", 0.0, 100.0, live=True),
@@ -47,7 +47,7 @@ SPECS = (
 class RecorderNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("run_recorder", **kwargs)
-        self.params = declare_parameters(self, SPECS)
+        self.params = declare_parameters(self, PARAMS)
         self.recording = McapRecording(self.params["path"])
         self._last_image_ns: dict[str, int] = {}
         for topic, cls, type_name, qos, throttled in TOPICS:

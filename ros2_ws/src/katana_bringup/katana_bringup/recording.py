@@ -16,9 +16,11 @@ import threading
 from collections.abc import Callable
 from pathlib import Path
 
+from ament_index_python.packages import get_package_share_directory
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import CompressionType, Writer
+from mcap_ros2.decoder import DecoderFactory
 
 _BUILTIN = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16",
             "int32", "uint32", "int64", "uint64", "string", "wstring"}
@@ -27,8 +29,6 @@ _SEPARATOR = "=" * 80
 
 def _msg_path(full_type: str) -> Path:
     """The .msg file of 'pkg/msg/Type' from the ament index."""
-    from ament_index_python.packages import get_package_share_directory
-
     pkg, _, name = full_type.split("/")
     return Path(get_package_share_directory(pkg)) / "msg" / f"{name}.msg"
 
@@ -129,8 +129,6 @@ def read_recording(path: str | Path):
     A complete file is read through its summary; one whose writer was killed (no summary, a
     record cut short at the end) is scanned from the start up to the last complete record.
     """
-    from mcap_ros2.decoder import DecoderFactory
-
     with open(path, "rb") as fh:
         try:
             reader = make_reader(fh, decoder_factories=[DecoderFactory()])

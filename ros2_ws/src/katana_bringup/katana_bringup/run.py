@@ -25,10 +25,22 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import rclpy
 import yaml
+from ament_index_python.packages import get_package_share_directory
 from katana_common.cli_args import positive_seconds
+from katana_common.executor import MultiThreadedExecutor
 from katana_common.node_runner import EXIT_INVALID_CONFIGURATION, spin_nodes
 from katana_common.params import ParameterError
+from katana_curiosity.curiosity_node import CuriosityNode
+from katana_manipulation.pick_place_executor import PickPlaceExecutor
+from katana_perception.block_memory_node import BlockMemoryNode
+from katana_perception.fovea_node import FoveaNode
+from katana_perception.perception_node import PerceptionNode
+from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
+
+from .recorder_node import RecorderNode
 
 PACKAGE = "katana_bringup"
 BACKENDS = ("sim", "hardware")
@@ -42,8 +54,6 @@ KATANA_RUN_SHUTDOWN_LIMIT_S = 2.5
 def config_dir() -> Path:
     """The installed config folder (ament index) or the source tree's."""
     try:
-        from ament_index_python.packages import get_package_share_directory
-
         path = Path(get_package_share_directory(PACKAGE)) / "config"
         if path.is_dir():
             return path
@@ -109,21 +119,19 @@ def _flatten(params: dict[str, Any], prefix: str = "") -> dict[str, Any]:
 
 def overrides_for(node_name: str, params: dict[str, dict[str, Any]]) -> list:
     """rclpy Parameters for one node: the wildcard entries, then the node's own."""
-    from rclpy.parameter import Parameter
-
     values = {**params.get("/**", {}), **params.get(node_name, {})}
     return [Parameter(name, value=value) for name, value in values.items()]
 
 
 def _sim_nodes(params: dict, context) -> list:
-    from katana_sim.sim_node import SimNode
+    from katana_sim.sim_node import SimNode  # a backend's package loads only when chosen
 
     return [SimNode(context=context, parameter_overrides=overrides_for("sim_node", params))]
 
 
 def _hardware_nodes(params: dict, context) -> list:
     try:
-        from katana_driver.bringup import CAMERA, DRIVER, build_hardware_nodes
+        from katana_driver.bringup import CAMERA, DRIVER, build_hardware_nodes  # only if chosen
     except ImportError as exc:
         raise SystemExit(
             "katana-run: backend 'hardware' needs katana_driver (katana_driver.bringup."
@@ -142,10 +150,6 @@ BACKEND_BUILDERS: dict[str, Callable[[dict, Any], list]] = {
 
 
 def _perception_nodes(params: dict, context) -> list:
-    from katana_perception.block_memory_node import BlockMemoryNode
-    from katana_perception.fovea_node import FoveaNode
-    from katana_perception.perception_node import PerceptionNode
-
     return [
         cls(context=context, parameter_overrides=overrides_for(name, params))
         for cls, name in ((PerceptionNode, "perception_node"),
@@ -154,8 +158,6 @@ def _perception_nodes(params: dict, context) -> list:
 
 
 def _curiosity_nodes(params: dict, context) -> list:
-    from katana_curiosity.curiosity_node import CuriosityNode
-
     return [CuriosityNode(context=context,
                           parameter_overrides=overrides_for("curiosity_node", params))]
 
@@ -181,8 +183,6 @@ def build_nodes(
     nodes: list = []
     try:
         if "arm" in layers:
-            from katana_manipulation.pick_place_executor import PickPlaceExecutor
-
             nodes += BACKEND_BUILDERS[backend](params, context)
             nodes.append(PickPlaceExecutor(
                 context=context,
@@ -192,8 +192,6 @@ def build_nodes(
         if "curiosity" in layers:
             nodes += _curiosity_nodes(params, context)
         if record is not None:
-            from .recorder_node import RecorderNode
-
             own = {**params, "run_recorder": {**params.get("run_recorder", {}),
                                               "path": str(record)}}
             nodes.append(RecorderNode(context=context,
@@ -282,9 +280,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(own)
     files, params = load_graph_params(parser, args.backend, args.params)
 
-    import rclpy
-    from rclpy.signals import SignalHandlerOptions
-
     # katana-run handles SIGINT/SIGTERM itself (spin_nodes): the nodes stop before the context
     rclpy.init(args=["katana-run", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
     try:
@@ -300,8 +295,6 @@ def main(argv: list[str] | None = None) -> int:
     names = ", ".join(n.get_name() for n in nodes)
     print(f"katana-run: backend {args.backend}: {names} (parameters: "
           f"{', '.join(str(f) for f in files)})", flush=True)
-    from katana_common.executor import MultiThreadedExecutor
-
     return spin_nodes(nodes, "katana-run", args.duration,
                       executor=MultiThreadedExecutor(num_threads=EXECUTOR_THREADS),
                       limit_s=KATANA_RUN_SHUTDOWN_LIMIT_S)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import statistics
 from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
 
 import matplotlib
@@ -12,12 +13,23 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from katana_curiosity.core.predictors import PredictorBank  # noqa: E402
-from katana_curiosity.core.robot_loop import robot_bank  # noqa: E402
+from katana_curiosity.core.predictors import (  # noqa: E402
+    ALPHA,
+    THETA_ROBOT,
+    PredictorBank,
+    QueryRule,
+)
+from katana_curiosity.core.progress import (  # noqa: E402
+    last_query,
+    longest_identical_plan_streak,
+    wasted_experiments,
+)
+from katana_curiosity.core.robot_loop import SETTING_CHANGES, robot_bank  # noqa: E402
 from katana_curiosity.core.run_record import LOG_NAME, ExperienceLog, ExperimentRecord, replay  # noqa: E402
 
 
-def summarise_run(records: list[ExperimentRecord], n_actions: int, max_height: int) -> dict:
+def summarise_run(records: list[ExperimentRecord], n_actions: int, max_height: int,
+                  rule: QueryRule | None = None) -> dict:
     """Experiments, labels per height and action, the highest stack, seconds per experiment,
     and the attempts dropped on the way (by reason), over the whole logged run."""
     labels: dict[str, dict[str, dict[str, int]]] = {}
@@ -55,6 +67,27 @@ def summarise_run(records: list[ExperimentRecord], n_actions: int, max_height: i
         },
         "n_actions": n_actions,
         "max_height": max_height,
+        **progress_figures(records, rule or QueryRule(ALPHA, THETA_ROBOT)),
+    }
+
+
+def progress_figures(records: list[ExperimentRecord], rule: QueryRule) -> dict:
+    """Whether the run kept learning (core.progress): the experiments wasted (known, and on no
+    way to an unknown pair), the longest streak of identical planned placements, the last
+    query, and the setting changes made instead of plans, by reason."""
+    wasted = wasted_experiments(records, rule)
+    changes: Counter[str] = Counter()
+    for r in records:
+        changes.update({k: v for k, v in r.dropped_before.items() if k in SETTING_CHANGES})
+    return {
+        "wasted_experiments": {
+            "total": len(wasted),
+            "fraction": round(len(wasted) / len(records), 4) if records else 0.0,
+            "indices": wasted,
+        },
+        "longest_identical_plan_streak": longest_identical_plan_streak(records),
+        "last_query": last_query(records),
+        "setting_changes_by_reason": dict(sorted(changes.items())),
     }
 
 
@@ -81,34 +114,38 @@ def read_sessions(run_dir: Path) -> list[dict]:
     return sessions
 
 
+def draw_margins(ax, margin: np.ndarray, chi: np.ndarray, counts: np.ndarray,
+                 title: str) -> np.ndarray:
+    """One height of a learned model (cf. Figure 13): the margin per action with its
+    confidence band, and the experiments per action in grey (NaN: none written). Returns the
+    actions (1-based) of the x axis."""
+    actions = np.arange(1, len(margin) + 1)
+    ax.fill_between(actions, margin - chi, margin + chi, color="lightsteelblue",
+                    label="margin +- chi")
+    ax.plot(actions, margin, "b.-", label="learned margin")
+    for a, n in zip(actions, counts, strict=True):
+        if np.isfinite(n):
+            ax.annotate(str(int(n)), (a, -1.45), ha="center", fontsize=7, color="grey")
+    ax.axhline(0, color="grey", lw=0.5)
+    ax.set_xlim(0.5, len(margin) + 0.5)  # fixed: what is drawn on it later changes nothing
+    ax.set_ylim(-1.6, 1.6)
+    ax.set_xticks(actions)
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel("action (bits on + 1)")
+    return actions
+
+
 def model_figure(bank: PredictorBank, max_height: int, counts: np.ndarray, path: Path) -> None:
     """Learned stability model per height and action with its confidence band (cf. Figure 13)."""
     heights = list(range(max_height + 1))
     fig, axes = plt.subplots(1, len(heights), figsize=(3.2 * len(heights), 3.4), squeeze=False)
-    actions = np.arange(1, bank.n_actions + 1)
     for ax, h in zip(axes[0], heights, strict=True):
-        margin, chi = bank.margin[h], bank.chi[h]
-        ax.fill_between(
-            actions, margin - chi, margin + chi, color="lightsteelblue", label="margin +- chi"
-        )
-        ax.plot(actions, margin, "b.-", label="learned margin")
+        margin = bank.margin[h]
+        actions = draw_margins(ax, margin, bank.chi[h], counts[h].astype(float),
+                               f"height {h} ({int(bank.examples[bank.slot[h]])} experiments)")
         unknown = bank.unknown[h]
-        ax.plot(
-            actions[unknown],
-            margin[unknown],
-            "o",
-            mfc="none",
-            mec="orange",
-            ms=10,
-            label="still unknown",
-        )
-        for a, n in zip(actions, counts[h], strict=True):
-            ax.annotate(str(int(n)), (a, -1.45), ha="center", fontsize=7, color="grey")
-        ax.axhline(0, color="grey", lw=0.5)
-        ax.set_ylim(-1.6, 1.6)
-        ax.set_xticks(actions)
-        ax.set_title(f"height {h} ({int(bank.examples[bank.slot[h]])} experiments)", fontsize=9)
-        ax.set_xlabel("action (bits on + 1)")
+        ax.plot(actions[unknown], margin[unknown], "o", mfc="none", mec="orange", ms=10,
+                label="still unknown")
     axes[0, 0].set_ylabel("margin (+1 stable, -1 falls)")
     axes[0, 0].legend(fontsize=7, loc="upper left")
     fig.suptitle("Learned placement models (grey: experiments per action)", fontsize=10)
@@ -117,20 +154,30 @@ def model_figure(bank: PredictorBank, max_height: int, counts: np.ndarray, path:
     plt.close(fig)
 
 
-def experience_figure(records: list[ExperimentRecord], max_height: int, path: Path) -> None:
-    """Cumulative direct (query) and planned experience per height (cf. Figure 4)."""
+def experience_figure(runs: Sequence[tuple[Sequence[str], Sequence[int]]], max_height: int,
+                      path: Path, title: str = "") -> None:
+    """Cumulative direct (query) and planned experience per height, the mean of `runs` (each
+    its modes and states per experiment, cut to the shortest) (cf. Figure 4)."""
+    n = min((len(modes) for modes, _ in runs), default=0)
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
-    steps = np.arange(1, len(records) + 1)
+    x = np.arange(1, n + 1)
     for ax, mode in zip(axes, ("query", "plan"), strict=True):
         for h in range(max_height + 1):
-            hits = np.cumsum([r.mode == mode and r.state == h for r in records])
-            if len(hits) and hits[-1]:
-                ax.plot(steps, hits, label=f"height {h}")
-        ax.set_title("direct exploration" if mode == "query" else "planned exploration")
+            curves = np.array([np.cumsum([m == mode and s == h for m, s in
+                                          zip(modes[:n], states[:n], strict=True)])
+                               for modes, states in runs], dtype=float)
+            mean = curves.mean(axis=0) if len(runs) else np.zeros(n)
+            if n and mean[-1]:  # one colour per height in both panels
+                ax.plot(x, mean, color=f"C{h}", label=f"height {h}")
+        ax.set_title(("direct" if mode == "query" else "planned") + " exploration" + title,
+                     fontsize=9)
         ax.set_xlabel("experiment")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("cumulative experience")
-    axes[0].legend(fontsize=8)
+    lines = {label: line for ax in axes for line, label in zip(*ax.get_legend_handles_labels(),
+                                                                 strict=True)}
+    if lines:
+        axes[0].legend([lines[k] for k in sorted(lines)], sorted(lines), fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -140,8 +187,8 @@ def write_report(
     run_dir: Path,
     n_actions: int = 6,
     max_height: int = 3,
-    alpha: float = 1.0,
-    theta: float = 0.1,
+    alpha: float = ALPHA,
+    theta: float = THETA_ROBOT,
     extra: dict | None = None,
 ) -> dict:
     """summary.json, model.png and experience.png in `run_dir`, from its experience log."""
@@ -149,12 +196,13 @@ def write_report(
     records = ExperienceLog(run_dir / LOG_NAME).records
     bank = robot_bank(max_height, n_actions, alpha, theta)
     replay(bank, records, str(run_dir / LOG_NAME))
-    summary = summarise_run(records, n_actions, max_height)
+    summary = summarise_run(records, n_actions, max_height, bank.rule)
     summary.update(extra or {})
     counts = np.zeros((max_height + 2, n_actions), dtype=int)
     for r in records:
         counts[r.state, r.action_index] += 1
     model_figure(bank, max_height, counts, run_dir / "model.png")
-    experience_figure(records, max_height, run_dir / "experience.png")
+    experience_figure([([r.mode for r in records], [r.state for r in records])], max_height,
+                      run_dir / "experience.png")
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary

@@ -8,10 +8,12 @@ perception, block memory, fovea and the curiosity node.
 
 Same nodes and the same parameter files, in the same order, as the all-in-one runner
 (`ros2 run katana_bringup katana-run`, katana_bringup.run.default_params_files): graph.yaml
-(the scene under `/**`), the backend's file (backend_sim.yaml: use_sim_time for every node,
-then sim.yaml; or backend_hardware.yaml: wall time), then `params_file` when given (an
-overlay, as katana-run's --params). backend:=hardware starts katana_driver's arm driver and
-camera node (katana_camera), with katana_driver/config/hardware.yaml first.
+(the scene and the pick-and-place geometry under `/**`), the backend's file (backend_sim.yaml:
+use_sim_time for every node, then sim.yaml; or backend_hardware.yaml: wall time), then
+`params_file` when given (an overlay, as katana-run's --params). backend:=hardware starts
+katana_driver's arm driver and camera node (katana_camera), with
+katana_driver/config/hardware.yaml first. The packaged files are generated from the nodes'
+parameter specs (katana_bringup.config_files).
 """
 
 import os

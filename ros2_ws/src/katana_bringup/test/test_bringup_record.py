@@ -13,14 +13,16 @@ from pathlib import Path
 
 import pytest
 import rclpy
+from katana_bringup.in_process import InProcessGraph
 from katana_bringup.recorder_node import TOPICS, RecorderNode
 from katana_bringup.recording import message_definition, read_recording
-from katana_bringup.testing import InProcessGraph
 from katana_common.qos import EVENT_QOS, SENSOR_QOS, STATE_QOS
 from katana_common.testing import private_ros_env
 from katana_interfaces.msg import Block, BlockArray, Experience, LearnerState
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image, JointState
@@ -101,9 +103,6 @@ def test_sigkill_leaves_a_readable_file(tmp_path, monkeypatch):
          "-p", f"path:={path}"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
         monkeypatch.setenv(key, env[key])
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-
     ctx = Context()
     rclpy.init(context=ctx)
     node = Node("kill_test_publisher", context=ctx)

@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from katana_bringup.run_report import append_session, read_sessions, write_report
+from katana_curiosity.core.predictors import ALPHA, THETA_ROBOT
 from katana_curiosity.core.robot_loop import robot_bank
 from katana_curiosity.core.run_record import (
     ExperienceLog,
@@ -43,9 +44,9 @@ def test_a_record_survives_the_log_unchanged(tmp_path) -> None:
 def test_replay_equals_learning_the_same_examples_directly() -> None:
     records = [record(i, state=i % 4, action=1 + i % 6, label=1 if i % 3 else -1)
                for i in range(20)]
-    bank = robot_bank(3, 6, 1.0, 0.1)
+    bank = robot_bank(3, 6, ALPHA, THETA_ROBOT)
     assert replay(bank, records) == 20
-    direct = robot_bank(3, 6, 1.0, 0.1)
+    direct = robot_bank(3, 6, ALPHA, THETA_ROBOT)
     for i in range(20):
         direct.update(i % 4, i % 6, 1.0 if i % 3 else -1.0)
     np.testing.assert_array_equal(bank.w, direct.w)
@@ -54,7 +55,7 @@ def test_replay_equals_learning_the_same_examples_directly() -> None:
 @pytest.mark.parametrize(("change", "field"), [
     ({"state": 4}, "state"), ({"action": 7}, "action")])
 def test_replay_refuses_a_state_or_action_the_learner_does_not_have(change, field) -> None:
-    bank = robot_bank(3, 6, 1.0, 0.1)
+    bank = robot_bank(3, 6, ALPHA, THETA_ROBOT)
     bad = [record(0), ExperimentRecord(**{**record(1).__dict__, **change})]
     with pytest.raises(LogError, match=f"log:2: field '{field}'"):
         replay(bank, bad)
@@ -136,3 +137,25 @@ def test_sessions_are_kept_for_the_whole_run(tmp_path) -> None:
     append_session(tmp_path, {"wall_s": 3.0, "frames": ["a.png"]})
     append_session(tmp_path, {"wall_s": 4.5, "frames": []})
     assert [s["wall_s"] for s in read_sessions(tmp_path)] == [3.0, 4.5]
+
+
+def test_the_summary_says_whether_the_run_kept_learning(tmp_path) -> None:
+    """Queries, then a plan towards height 2 that led to a query (useful), then four identical
+    known table placements ended by a setting change (wasted), then a query after the reset."""
+    log = ExperienceLog(tmp_path / "experience.jsonl")
+    known = {"margin_before": 0.9, "confidence_before": 0.01}
+    unknown = {"margin_before": 0.0, "confidence_before": 0.8}
+    script = [("query", 1, unknown, {}, 0), ("plan", 1, known, {}, 0),
+              ("query", 2, unknown, {}, 0)]
+    script += [("plan", 0, known, {}, 0)] * 4
+    script += [("query", 1, unknown, {"plan_changed_nothing": 1, "grasp_missed": 1}, 1)]
+    for i, (mode, state, before, dropped, resets) in enumerate(script):
+        log.append(ExperimentRecord(index=i, state=state, action=1, label=1, mode=mode,
+                                    available=[0, 3], dropped_before=dropped,
+                                    resets_before=resets, **before))
+    summary = write_report(tmp_path)
+    assert summary["wasted_experiments"] == {"total": 4, "fraction": 0.5,
+                                             "indices": [3, 4, 5, 6]}
+    assert summary["longest_identical_plan_streak"] == 4
+    assert summary["last_query"] == 7
+    assert summary["setting_changes_by_reason"] == {"plan_changed_nothing": 1}

@@ -18,7 +18,7 @@ import threading
 import time
 
 import numpy as np
-from katana_common.conversions import time_msg
+from katana_common.messages import time_msg
 from katana_common.node_runner import run_node
 from katana_common.params import Param, ParameterError, declare_parameters
 from katana_common.qos import SENSOR_QOS

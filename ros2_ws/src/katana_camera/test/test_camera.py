@@ -1,7 +1,7 @@
 """camera_node and its core: camera_info YAML, a SUBSTITUTE frame source, video, no camera."""
 
+import functools
 import itertools
-import time
 
 import cv2
 import numpy as np
@@ -19,6 +19,7 @@ from katana_camera.core.camera import (
 )
 from katana_common.params import ParameterError
 from katana_common.qos import SENSOR_QOS
+from katana_common.testing import spin_until
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -105,14 +106,7 @@ class CameraGraph:
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
         self.executor.add_node(self.client)
-
-    def spin_until(self, predicate, limit_s=10.0):
-        deadline = time.monotonic() + limit_s
-        while time.monotonic() < deadline:
-            if predicate():
-                return True
-            self.executor.spin_once(timeout_sec=0.05)
-        return predicate()
+        self.spin_until = functools.partial(spin_until, self.executor)
 
     def close(self):
         self.executor.shutdown()
@@ -177,7 +171,7 @@ def test_missing_camera_is_a_clear_error_and_the_node_stays_up(camera_graph):
     g = camera_graph(device="/dev/katana_no_such_camera", reconnect_period=0.1)
     assert g.spin_until(lambda: "cannot open" in g.node.error)
     assert "device" in g.node.error
-    g.spin_until(lambda: False, limit_s=0.5)  # keeps spinning, retrying, not crashing
+    g.spin_until(lambda: False, timeout_s=0.5)  # keeps spinning, retrying, not crashing
     assert g.node.frames_published == 0 and not g.images
 
 

@@ -1,5 +1,5 @@
 """SIGINT and SIGTERM end camera_node (a separate process) cleanly: exit code 0, no traceback.
-How fast (issue 10: within 2 s) is measured by bench/bench_driver.py (shutdown_s); the bound
+How fast (within 2 s, docs/hardware.md) is measured by bench/bench_driver.py (shutdown_s); the bound
 here only tells a hang from a slow machine."""
 
 import signal

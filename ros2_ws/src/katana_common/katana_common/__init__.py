@@ -4,7 +4,7 @@
   `ParameterError`).
 - `node_runner`: `run_node`, every node's main(): start-up errors, signals, shutdown, exit codes.
 - `qos`: the QoS profiles, named by purpose.
-- `conversions`: stamps and durations to and from seconds.
+- `messages`: stamps and durations to and from seconds (message <-> value).
 - `futures`: the bounded wait on an rclpy future from a callback thread.
 - `executor`: the MultiThreadedExecutor every multi-threaded graph spins on (rclpy's without
   two busy loops of its spinning thread).

@@ -42,9 +42,3 @@ def wait_for_future(
         remaining -= step
     return future.result()
 
-
-def future_done_within(future: Any, timeout_s: float) -> bool:
-    """True when `future` completes within `timeout_s` (it is not cancelled otherwise)."""
-    done = threading.Event()
-    future.add_done_callback(lambda _f: done.set())
-    return done.wait(timeout_s) or future.done()

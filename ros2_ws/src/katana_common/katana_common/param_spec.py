@@ -1,11 +1,15 @@
 """`Param`: one parameter's name, default, description and valid values (no rclpy).
 
 Kept apart from `params` so that shared parameter lists (`scene`) can be defined without rclpy.
+`yaml_section` writes a node's specs as standard ROS 2 parameter YAML (the packaged files are
+generated with it, so a default is stated once: in its spec).
 """
 
 from __future__ import annotations
 
 import math
+import textwrap
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -120,3 +124,87 @@ class Param:
                     )
                 ]
         return desc
+
+
+_WIDTH = 99
+
+
+def yaml_value(value: Value) -> str:
+    """`value` as a YAML flow scalar or sequence that both PyYAML and rcl read back with its
+    type (a float always with a '.', so that 1.0 stays a double)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        text = repr(value)
+        if "e" in text and "." not in text:
+            mantissa, exponent = text.split("e")
+            text = f"{mantissa}.0e{exponent}"
+        return text if ("." in text or "e" in text) else text + ".0"
+    if isinstance(value, str):
+        return _quoted(value)
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(yaml_value(v) for v in value) + "]"
+    raise TypeError(f"no YAML for {value!r}")
+
+
+def _quoted(text: str) -> str:
+    """A YAML double-quoted scalar: printable ASCII as it is, everything else escaped."""
+    out = []
+    for char in text:
+        code = ord(char)
+        if char in '"\\':
+            out.append("\\" + char)
+        elif 0x20 <= code < 0x7F:
+            out.append(char)
+        elif code <= 0xFF:
+            out.append(f"\\x{code:02x}")
+        elif code <= 0xFFFF:
+            out.append(f"\\u{code:04x}")
+        else:
+            out.append(f"\\U{code:08x}")
+    return '"' + "".join(out) + '"'
+
+
+def _entry(spec: Param, value: Value, indent: str) -> list[str]:
+    note = spec.description
+    if spec.live and "live" not in note:
+        note = "[live] " + note
+    if value != spec.default:
+        note += f" (default {yaml_value(spec.default)})"
+    lines = textwrap.wrap(note, _WIDTH - len(indent) - 2, break_on_hyphens=False)
+    out = [f"{indent}# {line}" for line in lines]
+    text = f"{indent}{spec.name}: {yaml_value(value)}"
+    if len(text) > _WIDTH and isinstance(value, list | tuple) and len(value) > 1:
+        lead = " " * (len(indent) + len(spec.name) + 3)
+        items = [yaml_value(v) for v in value]
+        text = f"{indent}{spec.name}: [{items[0]}"
+        for item in items[1:]:
+            if len(text) + len(item) + 3 > _WIDTH:
+                out.append(text + ",")
+                text = lead + item
+            else:
+                text += ", " + item
+        text += "]"
+    out.append(text)
+    return out
+
+
+def yaml_section(node: str, specs: Iterable[Param],
+                 values: Mapping[str, Value] | None = None) -> str:
+    """`node: {ros__parameters: ...}` with every spec's default, or its entry in `values` (a
+    deliberate choice, noted with the default), each under its description."""
+    values = dict(values or {})
+    specs = list(specs)
+    unknown = sorted(set(values) - {s.name for s in specs})
+    if unknown:
+        raise ValueError(f"{node}: no spec for {', '.join(unknown)}")
+    lines = [f"{node}:", "  ros__parameters:"]
+    for spec in specs:
+        value = values.get(spec.name, spec.default)
+        reason = spec.problem(value)
+        if reason:
+            raise ValueError(f"{node}: parameter '{spec.name}' {reason}")
+        lines += _entry(spec, value, "    ")
+    return "\n".join(lines) + "\n"

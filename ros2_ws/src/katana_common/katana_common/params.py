@@ -30,10 +30,16 @@ from .scene import SCENE_PARAMS
 
 __all__ = ["Param", "ParameterError", "NodeParameters", "declare_parameters"]
 
-#: names a node may be given without declaring them: rclpy's own, and the scene facts that
-#: graph.yaml sets for every node under `/**` (a node that does not use them ignores them)
+#: the pick-and-place geometry graph.yaml sets for every node under `/**`: the executor plans
+#: with it and the nodes that offer placements compute the arm's reach from it (the specs are
+#: katana_manipulation.reach_params.REACH_PARAMS; a test there checks that the names agree)
+GRAPH_WIDE_GEOMETRY = ("approach_height", "grasp_offset")
+#: names a node may be given without declaring them: rclpy's own, and the graph-wide facts that
+#: graph.yaml sets for every node under `/**` (a node that does not use them ignores them): the
+#: scene and the pick-and-place geometry
 _TOLERATED_UNDECLARED = frozenset(
-    ("use_sim_time", "start_type_description_service") + tuple(p.name for p in SCENE_PARAMS)
+    ("use_sim_time", "start_type_description_service", *GRAPH_WIDE_GEOMETRY)
+    + tuple(p.name for p in SCENE_PARAMS)
 )
 
 

@@ -1,15 +1,78 @@
-"""What tests that start node processes share: a ROS domain of their own, and a probe node."""
+"""What the tests share: bounded waits (`spin_until` spins an executor, `wait_until` polls while
+something else spins; `call_service` calls a service with them), and for tests that start node
+processes a ROS domain of their own, a probe node, and `stop_process` (signal a node process,
+time how long it takes to exit)."""
 
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+import subprocess
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import TypeVar
 
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
+
+T = TypeVar("T")
+
+
+def spin_until(executor: Executor, condition: Callable[[], T], timeout_s: float = 10.0,
+               slice_s: float = 0.05) -> T:
+    """Spin `executor` (slices of at most `slice_s`, never past the deadline) until
+    `condition()` is truthy; returns that value, or the last (falsy) one after `timeout_s`.
+    For a test that spins its graph itself: `assert spin_until(ex, client.server_is_ready)`."""
+    return _until(condition, timeout_s, lambda s: executor.spin_once(timeout_sec=s), slice_s)
+
+
+def call_service(executor: Executor, client, request, timeout_s: float = 10.0):
+    """Call `client`'s service with `request` and return the response, spinning `executor`
+    while waiting (at most `timeout_s` for the service, and as long again for the answer);
+    TimeoutError says which wait ran out."""
+    if not spin_until(executor, client.service_is_ready, timeout_s):
+        raise TimeoutError(f"service {client.srv_name} not available within {timeout_s} s")
+    future = client.call_async(request)
+    if not spin_until(executor, future.done, timeout_s):
+        raise TimeoutError(f"no answer from {client.srv_name} within {timeout_s} s")
+    return future.result()
+
+
+def wait_until(condition: Callable[[], T], timeout_s: float = 10.0, poll_s: float = 0.005) -> T:
+    """Poll `condition()` every `poll_s` until it is truthy; returns that value, or the last
+    (falsy) one after `timeout_s`. For a graph another thread spins, or no ROS at all."""
+    return _until(condition, timeout_s, time.sleep, poll_s)
+
+
+def _until(condition: Callable[[], T], timeout_s: float, pause: Callable[[float], object],
+           step_s: float) -> T:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = condition()
+        remaining = deadline - time.monotonic()
+        if value or remaining <= 0.0:
+            return value
+        pause(min(step_s, remaining))
+
+
+def stop_process(proc: subprocess.Popen, sig: int, timeout_s: float = 30.0,
+                 ) -> tuple[float, str | None, str | None]:
+    """Send `sig` to `proc` and wait up to `timeout_s` for it to exit; kill it if it is still
+    running then (so that a stuck node never outlives its test). Returns the seconds from the
+    signal to the exit (or the kill) and the process's stdout and stderr (None where they were
+    not piped). A killed process has a negative returncode, for the caller's assertions."""
+    start = time.monotonic()
+    proc.send_signal(sig)
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+    seconds = time.monotonic() - start
+    out, err = proc.communicate()
+    return seconds, out, err
 
 
 def private_domain_id() -> int:

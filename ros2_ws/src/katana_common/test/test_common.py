@@ -1,4 +1,4 @@
-"""katana_common: parameter specs, declaration, live updates, the runner, conversions, futures."""
+"""katana_common: parameters, declaration, live updates, the runner, messages, futures."""
 
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ import pytest
 import rclpy
 from hypothesis import given
 from hypothesis import strategies as st
-from katana_common.conversions import duration_msg, time_msg, to_seconds
 from katana_common.futures import Stopped, wait_for_future
+from katana_common.messages import duration_msg, time_msg, to_seconds
 from katana_common.node_runner import EXIT_INVALID_CONFIGURATION, EXIT_OK
 from katana_common.param_spec import Param
 from katana_common.params import ParameterError, declare_parameters
@@ -30,7 +30,7 @@ from rclpy.task import Future
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
 
-SPECS = (
+PARAMS = (
     Param("alpha", 1.0, "query scale", low=1e-3, high=100.0, live=True),
     Param("strategy", "q1", "strategy", choices=("q1", "random"), live=True),
     Param("max_height", 3, "top height", low=0, high=7),
@@ -42,35 +42,35 @@ SPECS = (
 # -- Param.problem: independent of ROS --------------------------------------------------------
 @given(st.floats(allow_nan=True, allow_infinity=True))
 def test_float_range_matches_a_direct_comparison(value):
-    spec = SPECS[0]
+    spec = PARAMS[0]
     ok = math.isfinite(value) and 1e-3 <= value <= 100.0
     assert (spec.problem(value) is None) == ok
 
 
 @given(st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=4))
 def test_list_bounds_every_element_and_the_length(values):
-    spec = SPECS[3]
+    spec = PARAMS[3]
     ok = len(values) >= 1 and all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in values)
     assert (spec.problem(values) is None) == ok
 
 
 @given(st.text(max_size=8))
 def test_choices_accept_only_the_listed_values(value):
-    assert (SPECS[1].problem(value) is None) == (value in ("q1", "random"))
+    assert (PARAMS[1].problem(value) is None) == (value in ("q1", "random"))
 
 
 def test_a_bool_is_not_a_number_and_empty_text_is_refused():
-    assert SPECS[2].problem(True) is not None
-    assert SPECS[4].problem("") is not None
+    assert PARAMS[2].problem(True) is not None
+    assert PARAMS[4].problem("") is not None
     assert Param("flag", False, "a flag").problem(1) is not None
 
 
 def test_valid_text_names_range_choices_and_length():
-    assert "[0.001, 100]" in SPECS[0].valid_text()
-    assert "'q1', 'random'" in SPECS[1].valid_text()
-    assert "at least 1" in SPECS[3].valid_text()
-    assert not SPECS[0].descriptor().read_only
-    assert SPECS[2].descriptor().read_only
+    assert "[0.001, 100]" in PARAMS[0].valid_text()
+    assert "'q1', 'random'" in PARAMS[1].valid_text()
+    assert "at least 1" in PARAMS[3].valid_text()
+    assert not PARAMS[0].descriptor().read_only
+    assert PARAMS[2].descriptor().read_only
 
 
 # -- declaration on a node --------------------------------------------------------------------
@@ -94,7 +94,7 @@ def _node(context, overrides=()):
 
 def test_defaults_are_declared_and_read_back(context):
     node = _node(context)
-    params = declare_parameters(node, SPECS)
+    params = declare_parameters(node, PARAMS)
     assert params["alpha"] == 1.0 and params["reach"] == [0.3, 0.2]
     assert node.get_parameter("strategy").value == "q1"
     node.destroy_node()
@@ -115,7 +115,7 @@ def test_defaults_are_declared_and_read_back(context):
 def test_an_invalid_override_names_the_parameter_and_its_valid_values(context, name, value):
     node = _node(context, [(name, value)])
     with pytest.raises(ParameterError) as err:
-        declare_parameters(node, SPECS)
+        declare_parameters(node, PARAMS)
     assert f"'{name}'" in str(err.value) and "valid" in str(err.value)
     node.destroy_node()
 
@@ -123,10 +123,10 @@ def test_an_invalid_override_names_the_parameter_and_its_valid_values(context, n
 def test_an_unknown_override_is_refused_but_scene_names_are_tolerated(context):
     node = _node(context, [("alhpa", 2.0)])
     with pytest.raises(ParameterError, match="unknown parameter 'alhpa'"):
-        declare_parameters(node, SPECS)
+        declare_parameters(node, PARAMS)
     node.destroy_node()
     node = _node(context, [("block_size", [0.04, 0.04, 0.03]), ("world_frame", "world")])
-    declare_parameters(node, SPECS)
+    declare_parameters(node, PARAMS)
     node.destroy_node()
 
 
@@ -136,10 +136,10 @@ def test_cross_check_applies_at_start_up_and_live(context):
 
     node = _node(context, [("alpha", 60.0)])
     with pytest.raises(ParameterError, match="below 50"):
-        declare_parameters(node, SPECS, cross_check=rule)
+        declare_parameters(node, PARAMS, cross_check=rule)
     node.destroy_node()
     node = _node(context)
-    params = declare_parameters(node, SPECS, cross_check=rule)
+    params = declare_parameters(node, PARAMS, cross_check=rule)
     result = node.set_parameters([Parameter("alpha", value=70.0)])[0]
     assert not result.successful and "below 50" in result.reason
     assert params["alpha"] == 1.0
@@ -149,7 +149,7 @@ def test_cross_check_applies_at_start_up_and_live(context):
 def test_live_changes_through_the_parameter_service(context):
     """What `ros2 param set` does: the SetParameters service, through rclpy's client."""
     server = _node(context)
-    params = declare_parameters(server, SPECS)
+    params = declare_parameters(server, PARAMS)
     seen = []
     params.on_change(seen.append)
     client_node = _node(context)
@@ -237,7 +237,7 @@ def test_a_signal_stops_the_node_cleanly(sig):
     assert "stopping" in out and "Traceback" not in err
 
 
-# -- conversions and futures ------------------------------------------------------------------
+# -- messages and futures ---------------------------------------------------------------------
 @given(st.floats(min_value=0.0, max_value=4e9))
 def test_time_round_trips_to_the_nanosecond(seconds):
     msg = time_msg(seconds)

@@ -22,14 +22,12 @@ from katana_common.node_runner import run_node
 from katana_common.params import ParameterError, declare_parameters
 from katana_common.qos import EVENT_QOS, STATE_QOS
 from katana_interfaces.msg import Experience, LearnerState
-from katana_manipulation.core.reach import pick_reach
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from .core.block_choice import PickReach
-from .core.explorer import Explorer, make_strategy
+from .core.explorer import Explorer
 from .core.robot_loop import (
     LoopPolicy,
     RobotLoop,
@@ -47,9 +45,10 @@ from .core.run_record import (
     replay,
     save_checkpoint,
 )
+from .core.strategies import make_strategy
 from .messages import experience_msg, learner_state_msg, markers_msg
-from .node_params import PARAMS, cross_check
-from .robot_environment import EnvironmentConfig, RobotEnvironment
+from .node_params import PARAMS, cross_check, environment_config
+from .robot_environment import RobotEnvironment
 
 
 class CuriosityNode(Node):
@@ -75,14 +74,8 @@ class CuriosityNode(Node):
         self._stop = threading.Event()
         self.finished = threading.Event()
         group = ReentrantCallbackGroup()
-        self.environment = RobotEnvironment(self, EnvironmentConfig(
-            n_actions=self.n_actions, max_height=self.max_height,
-            grasp_retries=p["grasp_retries"],
-            reach=PickReach(tuple((b.min_m, b.max_m) for b in (
-                pick_reach(level, p["block_size"][2]) for level in range(1, self.max_height + 2)))),
-            service_timeout_s=p["service_timeout_s"], action_timeout_s=p["action_timeout_s"],
-            blocks_timeout_s=p["blocks_timeout_s"], reset_service=p["reset_service"],
-        ), self._stop, callback_group=group)
+        self.environment = RobotEnvironment(self, environment_config(p), self._stop,
+                                            callback_group=group)
         self.environment.settings_observed = self.log.records[-1].setting if self.log else 0
         self.explorer = Explorer(self.environment, self.bank, self._make_strategy(),
                                  record_weights=True)
@@ -90,7 +83,9 @@ class CuriosityNode(Node):
         self.loop = RobotLoop(
             self.environment, self.explorer, self.log,
             LoopPolicy(max_experiments=p["max_experiments"], stuck_reset=p["stuck_reset"],
-                       setting_changes=p["setting_changes"]),
+                       setting_changes=p["setting_changes"],
+                       stop_when_all_known=p["stop_when_all_known"],
+                       unrealisable_after=p["unrealisable_after"]),
             self._publish_experiment, self.get_logger(), self._stop)
         self.experience_pub = self.create_publisher(Experience, "curiosity/experience", EVENT_QOS)
         self.state_pub = self.create_publisher(LearnerState, "curiosity/learner_state", STATE_QOS)
@@ -143,6 +138,7 @@ class CuriosityNode(Node):
                 self.environment.wait_until_ready(self.params["ready_timeout_s"])
                 self.get_logger().info("the arm and the graph are ready")
             self.get_logger().info(self.loop.run())
+            self.publish_state()  # the last state, with all_known_at when that ended the run
         except Stopping:
             pass
         except TimeoutError as exc:
@@ -213,7 +209,7 @@ class CuriosityNode(Node):
     def publish_state(self) -> None:
         self.state_pub.publish(learner_state_msg(
             self.bank, self.log.records, self.strategy_name, self.max_height,
-            self.get_clock().now().to_msg(), self.frame_id))
+            self.get_clock().now().to_msg(), self.frame_id, self.loop.all_known_at))
 
     def _checkpoint(self) -> str:
         path = self.run_dir / CHECKPOINT_NAME

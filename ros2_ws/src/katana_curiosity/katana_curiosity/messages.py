@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point
-from katana_common.conversions import duration_msg
+from katana_common.messages import duration_msg
 from katana_interfaces.msg import Experience, FoveaInstance, HeightModel, LearnerState
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
@@ -31,7 +31,8 @@ def experience_msg(record: ExperimentRecord, instance: FoveaInstance, stamp: Tim
 
 
 def learner_state_msg(bank: PredictorBank, records: list[ExperimentRecord], strategy: str,
-                      max_height: int, stamp: Time, frame: str) -> LearnerState:
+                      max_height: int, stamp: Time, frame: str,
+                      all_known_at: int | None = None) -> LearnerState:
     msg = LearnerState()
     msg.header.stamp, msg.header.frame_id = stamp, frame
     msg.experiments = len(records)
@@ -40,6 +41,7 @@ def learner_state_msg(bank: PredictorBank, records: list[ExperimentRecord], stra
     msg.strategy = strategy
     msg.alpha = float(bank.rule.alpha)
     msg.theta = float(bank.rule.theta)
+    msg.all_known_at = -1 if all_known_at is None else int(all_known_at)
     for h in range(max_height + 1):
         k = bank.slot[h]
         msg.heights.append(HeightModel(

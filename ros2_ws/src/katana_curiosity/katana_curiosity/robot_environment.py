@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from action_msgs.msg import GoalStatus
@@ -27,6 +27,7 @@ from std_msgs.msg import Bool
 
 from .core.block_choice import BlockView, PickReach, choose_block_to_move
 from .core.environment import Outcome, Setting
+from .core.explorer import Choice
 from .core.robot_loop import (
     GIVE_UP,
     UNREALISABLE,
@@ -38,6 +39,7 @@ from .core.robot_loop import (
     leave_until_moved,
 )
 from .core.run_record import InstanceRecord
+from .core.skill import choose_base
 
 #: block memory's output: the blocks it knows, with levels and poses
 BLOCKS_TOPIC = "memory/blocks"
@@ -49,14 +51,18 @@ _RESULT = PickAndPlace.Result
 
 @dataclass(frozen=True)
 class EnvironmentConfig:
+    """What RobotEnvironment needs; node_params.environment_config builds it from a node's
+    parameters (their defaults are the parameters', stated there once)."""
+
     n_actions: int
     max_height: int
     grasp_retries: int
     reach: PickReach
-    service_timeout_s: float = 10.0
-    action_timeout_s: float = 120.0
-    blocks_timeout_s: float = 10.0
-    reset_service: str = ""  # "": the one ResetWorld service the backend offers
+    service_timeout_s: float
+    action_timeout_s: float
+    blocks_timeout_s: float
+    reset_service: str  # "": the one ResetWorld service the backend offers
+    place_reach_m: tuple[tuple[float, float], ...] = ()  # (near, far) radius per height, m
 
 
 class RobotEnvironment:
@@ -72,6 +78,7 @@ class RobotEnvironment:
         self.pick_place = ActionClient(node, PickAndPlace, "pick_and_place", **kw)
         self.reset_client = None
         self._callback_group = callback_group
+        self.observed_stack_heights: tuple[int, ...] = ()
         self._cv = threading.Condition()
         self._blocks: BlockArray | None = None
         self._blocks_count = 0
@@ -243,6 +250,7 @@ class RobotEnvironment:
         # Available means executable (paper 2.2: availability comes from the known blocks): a
         # placement needs a block the arm can pick that is not part of the target stack.
         blocks = self.wait_for_blocks()
+        self.observed_stack_heights = tuple(sorted(b.level for b in blocks.blocks if b.on_top))
         usable = [inst for inst in usable if self._choose_block(blocks, inst, set())]
         if not usable:
             raise Unrealisable("no_usable_instance",
@@ -251,6 +259,29 @@ class RobotEnvironment:
         states = np.array([inst.state for inst in usable])
         actions = np.array([inst.action - 1 for inst in usable])
         return Setting.from_pairs(states, actions)
+
+    def place_planned(self, setting: Setting, choice: Choice, target_height: int) -> Choice:
+        """Which instance of a planned pair to make: the first whose block, once placed, lies
+        within the place reach of every height from the stack it makes up to `target_height`
+        (core.skill.choose_base on the narrowest band), so that a stack grows where the height
+        the plan builds towards can be reached."""
+        hits = setting.indices_of(choice.state, choice.action)
+        if len(hits) < 2 or not self.config.place_reach_m:
+            return choice
+        where = [(self.instances[i].placement.position.x, self.instances[i].placement.position.y)
+                 for i in hits]
+        made = choice.state + 1
+        reach = list(self.config.place_reach_m)
+        if made < len(reach):
+            bands = reach[made:max(made, min(target_height, len(reach) - 1)) + 1]
+            reach[made] = (max(b[0] for b in bands), min(b[1] for b in bands))
+        best = hits[choose_base(where, choice.state, self.config.max_height + 1, tuple(reach))]
+        return replace(choice, index=int(best))
+
+    def stack_heights(self) -> tuple[int, ...]:
+        """The heights of the stacks in the last observed setting (a loose block is a stack of
+        one), from the same memory/blocks the offer was made from."""
+        return self.observed_stack_heights
 
     def execute(self, state: int, action: int, index: int | None = None) -> Outcome:
         stages: dict[str, float] = {"observe_s": self.observe_s}
@@ -365,7 +396,8 @@ class RobotEnvironment:
         reach = self.config.reach
         choice = choose_block_to_move(
             views, (instance.placement.position.x, instance.placement.position.y),
-            list(instance.support_ids), lambda v: reach.can_pick(v.x, v.y, v.level))
+            list(instance.support_ids), lambda v: reach.can_pick(v.x, v.y, v.level),
+            from_stacks_first=instance.state == 0)
         if choice is None:
             return None
         return next(b for b in blocks.blocks if b.id == choice.id)

@@ -8,6 +8,11 @@ model loaded from a run's learner.npz (parameter `model`; '' = an untrained mode
 placement predicted at even odds) and learns nothing. One goal at a time; after every judged
 placement it publishes feedback with the predicted and the observed outcome, observes the
 setting again and chooses anew.
+
+Parameters: `model` and `max_placements`, and node_params.ROBOT_PARAMS, declared as
+curiosity_node declares them (one definition, one default: the state-action space, gamma,
+the graph calls and their timeouts, reset_service, the scene and the pick-and-place geometry
+the reach comes from). gamma applies to the next goal (live); the rest is read-only.
 """
 
 from __future__ import annotations
@@ -21,14 +26,11 @@ import numpy as np
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.node_runner import run_node
 from katana_common.params import Param, ParameterError, declare_parameters
-from katana_common.scene import SCENE_PARAMS
 from katana_interfaces.action import BuildStack
-from katana_manipulation.core.reach import pick_reach, place_reach_table
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
-from .core.block_choice import PickReach
 from .core.robot_loop import ExperimentAborted, Stopping, Unrealisable
 from .core.run_record import CHECKPOINT_NAME, load_checkpoint
 from .core.skill import (
@@ -39,23 +41,13 @@ from .core.skill import (
     build_stack,
     choose_base,
 )
-from .robot_environment import EnvironmentConfig, RobotEnvironment
+from .node_params import ROBOT_PARAMS, cross_check, environment_config, place_reach_of
+from .robot_environment import RobotEnvironment
 
 PARAMS = (
     Param("model", "", "A run folder (its learner.npz) or a learner.npz; '' = untrained."),
-    Param("max_height", 3, "Highest stack height the model covers (heights 0..max_height).",
-          0, 7),
-    Param("n_actions", 6, "Actions per state: bits on + 1 (six on the robot).", 1, 32),
-    Param("table_action", 1, "The only action on the table; 0: any.", 0, 32),
-    Param("gamma", 0.95, "Discount factor of the skill's plan.", 0.0, 0.999),
     Param("max_placements", 12, "Default bound on placements per goal.", 1, 1000),
-    Param("grasp_retries", 2, "Retries of a missed grasp.", 0, 10),
-    Param("service_timeout_s", 10.0, "Timeout of each service call, s.", 0.1, 600.0),
-    Param("action_timeout_s", 120.0, "Timeout of one pick-and-place, s.", 1.0, 3600.0),
-    Param("blocks_timeout_s", 10.0, "Wait for a fresh memory/blocks, s.", 0.1, 600.0),
-    Param("ready_timeout_s", 60.0, "Wait for the graph before the first placement, s.",
-          0.1, 3600.0),
-    *(p for p in SCENE_PARAMS if p.name in ("world_frame", "block_size")),
+    *ROBOT_PARAMS,
 )
 
 _RESULT = BuildStack.Result
@@ -141,7 +133,7 @@ class SkillNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__("skill_node", **kwargs)
-        self.params = p = declare_parameters(self, PARAMS)
+        self.params = p = declare_parameters(self, PARAMS, cross_check)
         try:
             self.model = load_model(p["model"], p["max_height"], p["n_actions"])
         except (OSError, ValueError, KeyError) as exc:
@@ -149,16 +141,9 @@ class SkillNode(Node):
         self._stop = threading.Event()
         self._busy = threading.Lock()
         group = ReentrantCallbackGroup()
-        self.environment = RobotEnvironment(self, EnvironmentConfig(
-            n_actions=p["n_actions"], max_height=p["max_height"],
-            grasp_retries=p["grasp_retries"],
-            reach=PickReach(tuple((b.min_m, b.max_m) for b in (
-                pick_reach(level, p["block_size"][2])
-                for level in range(1, p["max_height"] + 2)))),
-            service_timeout_s=p["service_timeout_s"], action_timeout_s=p["action_timeout_s"],
-            blocks_timeout_s=p["blocks_timeout_s"]), self._stop, callback_group=group)
-        self.place_reach_m = tuple((b.min_m, b.max_m) for b in place_reach_table(
-            p["max_height"], p["block_size"][2]))
+        self.environment = RobotEnvironment(self, environment_config(p), self._stop,
+                                            callback_group=group)
+        self.place_reach_m = place_reach_of(p)
         self._ready = False
         self.server = ActionServer(
             self, BuildStack, "build_stack", execute_callback=self._execute,

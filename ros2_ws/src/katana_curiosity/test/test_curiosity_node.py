@@ -16,10 +16,10 @@ import pytest
 import rclpy
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from katana_common.executor import MultiThreadedExecutor
+from katana_common.executor import BackgroundSpin, MultiThreadedExecutor
 from katana_common.params import ParameterError
 from katana_common.qos import STATE_QOS
-from katana_common.testing import private_domain_id
+from katana_common.testing import private_domain_id, wait_until
 from katana_curiosity.core.block_choice import PickReach
 from katana_curiosity.core.robot_loop import robot_bank
 from katana_curiosity.core.run_record import CHECKPOINT_NAME, load_checkpoint, replay
@@ -172,19 +172,10 @@ class Graph:
                                        self.states.append, STATE_QOS)
         for n in (self.fake, self.node, self.probe):
             self.executor.add_node(n)
-        self._closing = threading.Event()
-        self.spin = threading.Thread(target=self._spin, daemon=True)
-        self.spin.start()
-
-    def _spin(self) -> None:
-        while not self._closing.is_set() and self.context.ok():
-            self.executor.spin_once(timeout_sec=0.05)
+        self.spin = BackgroundSpin(self.executor)
 
     def wait(self, condition, timeout_s: float = 30.0, what: str = "condition"):
-        deadline = time.monotonic() + timeout_s
-        while not condition():
-            assert time.monotonic() < deadline, f"{what} not met within {timeout_s} s"
-            time.sleep(0.01)
+        assert wait_until(condition, timeout_s, 0.01), f"{what} not met within {timeout_s} s"
 
     def result(self, future, timeout_s: float = 10.0):
         self.wait(future.done, timeout_s, "an answer")
@@ -193,8 +184,7 @@ class Graph:
     def close(self) -> None:
         """The node's stop(), then the spinning ends, then teardown (as run_node does)."""
         self.node.stop()
-        self._closing.set()
-        self.spin.join(timeout=5)
+        self.spin.stop()
         self.executor.shutdown(timeout_sec=5)
         for n in (self.fake, self.node, self.probe):
             self.executor.remove_node(n)
@@ -485,6 +475,37 @@ def test_invalid_parameters_stop_the_node_with_the_parameter_named(tmp_path, nam
         overrides = [p for p in overrides if p.name != name] + [Parameter(name, value=value)]
         with pytest.raises(ParameterError, match=match):
             CuriosityNode(context=context, parameter_overrides=overrides)
+    finally:
+        rclpy.shutdown(context=context)
+
+
+def test_the_pick_reach_is_the_executors_with_the_same_geometry(tmp_path) -> None:
+    """grasp_offset given to every node (as graph.yaml's `/**` gives it) moves the curiosity
+    node's pick reach with the executor's: each band's edges lie where the executor's planner,
+    with that geometry, stops finding a plan (found from its kinematics, without core.reach),
+    not where the default geometry's do."""
+    from katana_manipulation.core.pick_place import PickPlaceParams
+    from katana_manipulation.pick_place_executor import PickPlaceExecutor
+    from katana_manipulation.testing import pick_limit_m
+
+    shared = [Parameter("grasp_offset", value=-0.015)]  # a lower grip
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    try:
+        node = CuriosityNode(context=context, parameter_overrides=params(tmp_path) + shared)
+        executor = PickPlaceExecutor(context=context, parameter_overrides=shared)
+        planned = executor.planner.p
+        assert planned.grasp_offset == -0.015
+        bands = node.environment.config.reach.bands_m
+        for level, (near, far) in enumerate(bands[:3], start=1):
+            mid = 0.5 * (near + far)
+            nearest, farthest = (pick_limit_m(planned, level, mid, outside)
+                                 for outside in (0.0, 0.6))
+            assert nearest <= near <= nearest + 0.01 and farthest - 0.01 <= far <= farthest
+        # the default grip reaches down to a block on one much nearer the pan axis
+        assert bands[1][0] > pick_limit_m(PickPlaceParams(), 2, 0.15, outside=0.0) + 0.03
+        node.destroy_node()
+        executor.destroy_node()
     finally:
         rclpy.shutdown(context=context)
 

@@ -17,7 +17,7 @@ from katana_curiosity.core.planner import (
     transition_model,
     value_iteration,
 )
-from katana_curiosity.core.predictors import PredictorBank, QueryRule, one_hot_with_bias
+from katana_curiosity.core.predictors import GAMMA, PredictorBank, QueryRule, one_hot_with_bias
 
 
 def random_mdp(seed: int, ns: int = 5, na: int = 3, gamma: float = 0.9) -> HeightMDP:
@@ -231,7 +231,7 @@ def test_variance_and_custom_phantom_rewards() -> None:
     expected = table.copy()
     expected[8] = 0.0  # the absorbing state earns nothing
     np.testing.assert_allclose(planner._mdp.rewards, expected)
-    fresh = HeightMDP(build_mdp(bank, 8).transitions, expected, 0.95)
+    fresh = HeightMDP(build_mdp(bank, 8).transitions, expected, GAMMA)
     np.testing.assert_allclose(q.max(axis=1), value_iteration(fresh).max(axis=1), atol=1e-7)
     table[3, 4] = 50.0  # a strategy's reward changes without any model update: re-read
     planner.solve()

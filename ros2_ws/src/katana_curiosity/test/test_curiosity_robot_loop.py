@@ -5,7 +5,8 @@ import threading
 
 import numpy as np
 from katana_curiosity.core.environment import Outcome, Setting
-from katana_curiosity.core.explorer import PLAN, Choice, Explorer, make_strategy
+from katana_curiosity.core.explorer import PLAN, Choice, Explorer
+from katana_curiosity.core.predictors import GAMMA
 from katana_curiosity.core.robot_loop import (
     ExecutionRecord,
     ExperimentAborted,
@@ -19,6 +20,7 @@ from katana_curiosity.core.robot_loop import (
     set_query_rule,
 )
 from katana_curiosity.core.run_record import ExperienceLog, InstanceRecord, replay
+from katana_curiosity.core.strategies import make_strategy
 
 
 class Logger:
@@ -80,15 +82,16 @@ class ScriptedArm:
         return "scattered"
 
 
-def make_loop(tmp_path, arm, max_experiments=10, seed=0, clock=None, stuck_reset=3):
+def make_loop(tmp_path, arm, max_experiments=10, seed=0, clock=None, stuck_reset=3,
+              setting_changes=3):
     bank = robot_bank(3, 6, 1.0, 0.1)
-    strategy = make_strategy("q1", bank, 4, 0.95, seed=seed,
+    strategy = make_strategy("q1", bank, 4, GAMMA, seed=seed,
                              feasible=feasible_actions(3, 6, 1))
     explorer = Explorer(arm, bank, strategy, record_weights=True)
     published = []
     loop = RobotLoop(arm, explorer, ExperienceLog(tmp_path / "experience.jsonl"),
                      LoopPolicy(max_experiments=max_experiments, stuck_reset=stuck_reset,
-                                backoff_s=0.0),
+                                backoff_s=0.0, setting_changes=setting_changes),
                      lambda record, step: published.append(record), Logger(),
                      wall_clock=clock or (lambda: 5.0))
     return loop, published
@@ -114,7 +117,9 @@ def test_a_block_out_of_reach_or_a_table_only_scene_asks_for_a_reset(tmp_path) -
     loop.run()
     assert arm.resets == 1
     arm = ScriptedArm(0, table_only=True)
-    loop, _ = make_loop(tmp_path / "b", arm, max_experiments=7, stuck_reset=3)
+    # (no setting changes for plans that change nothing: this checks the stuck_reset count)
+    loop, _ = make_loop(tmp_path / "b", arm, max_experiments=7, stuck_reset=3,
+                        setting_changes=0)
     loop.run()
     assert arm.resets == 2, "after experiments 3 and 6, each offering only the table"
     # every reset is marked, so the next observation waits for a picture of the new scene
@@ -237,7 +242,7 @@ def _known_up_to_height_one(arm, tmp_path, setting_changes=3):
 
 
 def test_a_known_plan_leading_nowhere_changes_the_setting_instead(tmp_path) -> None:
-    """Issue 9 section 4: the setting offers on height 1 only action 1, which the learner knows
+    """No experiment wasted: the setting offers on height 1 only action 1, which the learner knows
     falls. The loop resets instead of making it; the new setting offers action 6, which stays
     and grows the two-stack whose pairs are unknown, and that experiment is made."""
     arm = SettingUntilReset([(0, 0), (1, 0)], [(0, 0), (1, 0), (1, 5)],
@@ -309,3 +314,94 @@ def test_a_setting_with_no_usable_instance_is_reset_at_once(tmp_path) -> None:
     assert arm.resets == 1
     assert " ".join(arm.calls).count("observe reset") == 1  # right after the unusable setting
     assert loop.dropped_total == {"no_usable_instance": 1, "block_slipped": 1}
+
+
+def _known_on_the_table_and_at_three(arm, tmp_path, max_experiments):
+    """The livelock's learner: the table (action 1) and every pair at height 3 known, heights
+    1 and 2 unknown; the scene offers the table and a three-stack (available [0, 3])."""
+    loop, _ = make_loop(tmp_path, arm, max_experiments=max_experiments)
+    loop.policy = LoopPolicy(max_experiments=max_experiments, backoff_s=0.0)
+    bank = loop.explorer.bank
+    for _ in range(40):
+        bank.update(0, 0, 1)
+        for a in range(6):
+            bank.update(3, a, 1 if a == 5 else -1)
+    assert not bank.unknown[0, 0] and not bank.unknown[3].any() and bank.unknown[1:3].all()
+    return loop
+
+
+def test_a_known_plan_that_left_the_offer_unchanged_is_not_made_again(tmp_path) -> None:
+    """The livelock of the default demo: a three-stack the arm cannot place on and one loose
+    block. Placing the block on the table again leaves the offer as it was; the planner, which
+    expects height 1 next, plans it again. The loop makes it once, then changes the setting."""
+    table_and_three = [(0, 0), (3, 0), (3, 5)]
+    arm = SettingUntilReset(table_and_three, [(0, 0), (1, 0), (1, 5)], stays=lambda s, a: True)
+    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=2)
+    assert loop.run().startswith("done")
+    first, second = loop.log.records
+    assert (first.mode, first.state, first.action) == ("plan", 0, 1)
+    assert first.unknown_offered == 0 and first.resets_before == 0
+    assert arm.resets == 1, "the same plan in the same offer was refused once"
+    assert second.dropped_before == {"plan_changed_nothing": 1} and second.resets_before == 1
+    assert (second.mode, second.state) == ("query", 1) and second.unknown_offered == 2
+    assert loop.futile.is_futile((frozenset(table_and_three), ()), 0, 0)
+
+
+class CountingPlacements(SettingUntilReset):
+    """The table and a three-stack; every placement stays and is counted in `made`."""
+
+    def __init__(self) -> None:
+        super().__init__([(0, 0), (3, 0)], [], stays=lambda s, a: True)
+        self.made = 0
+
+    def execute(self, state, action, index=None):
+        self.made += 1
+        return super().execute(state, action, index)
+
+
+def test_a_plan_that_changed_the_offer_is_made_again(tmp_path) -> None:
+    """The same plan is fine when its placement changed what the arm is offered."""
+
+    class Alternating(CountingPlacements):
+        def observe(self) -> Setting:
+            offer = [(0, 0), (3, 0)] if self.made % 2 == 0 else [(0, 0), (3, 5)]
+            states, actions = zip(*offer, strict=True)
+            return Setting.from_pairs(np.array(states), np.array(actions))
+
+    arm = Alternating()
+    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=4)
+    assert loop.run().startswith("done")
+    assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0)] * 4
+    assert arm.resets == 0 and not loop.futile.futile
+
+
+def test_when_everything_that_can_occur_is_known_the_loop_says_so_and_ends(tmp_path) -> None:
+    loop, _ = make_loop(tmp_path, ScriptedArm(0), max_experiments=5)
+    bank = loop.explorer.bank
+    for _ in range(60):
+        for s in range(4):
+            for a in range(6):
+                bank.update(s, a, 1 if a == 5 else -1)
+    assert not (bank.unknown[:4] & feasible_actions(3, 6, 1)[:4]).any()
+    assert loop.run() == "done: everything the arm can realise is known after 0 experiments"
+    assert loop.all_known_at == 0 and len(loop.log) == 0
+    assert any("is known after 0 experiments" in line for line in loop.logger.lines)
+    # by the parameter, the loop goes on planning (the model keeps being refined)
+    loop.policy = LoopPolicy(max_experiments=5, backoff_s=0.0, stop_when_all_known=False)
+    assert loop.run() == "done: 5 experiments"
+    assert {r.mode for r in loop.log.records} == {"plan"} and loop.all_known_at == 0
+
+
+def test_the_same_offer_over_other_stacks_is_another_setting(tmp_path) -> None:
+    """A plan that left the offer as it was but changed the stacks (a stack's top moved to the
+    table) did change the scene: it is made again."""
+
+    class StacksChange(CountingPlacements):
+        def stack_heights(self) -> tuple[int, ...]:
+            return (1, 3) if self.made % 2 == 0 else (1, 1, 2)
+
+    arm = StacksChange()
+    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=3)
+    assert loop.run().startswith("done")
+    assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0)] * 3
+    assert arm.resets == 0 and not loop.futile.futile

@@ -127,3 +127,37 @@ def test_an_attempt_that_placed_nothing_is_chosen_anew_within_the_bound():
     bounded = build_stack(World([0, 0, 0]), skill, max_placements=3)
     assert not bounded.reached and bounded.placements == []
     assert bounded.reason == "placement bound reached"
+
+
+def test_the_skill_node_shares_the_curiosity_nodes_parameters_and_the_executors_reach():
+    """One definition of the parameters both nodes declare (so one default each), the reset
+    service reaches the skill's environment, and its placement reach follows the executor's
+    geometry: the far edge on a stack of three lies where the executor's planner, with the
+    same grasp_offset, stops finding a plan (from its kinematics, without core.reach)."""
+    from katana_curiosity.node_params import PARAMS as CURIOSITY_PARAMS
+    from katana_curiosity.node_params import ROBOT_PARAMS
+    from katana_curiosity.skill_node import PARAMS as SKILL_PARAMS
+    from katana_manipulation.core.pick_place import PickPlaceParams
+    from katana_manipulation.pick_place_executor import PickPlaceExecutor
+    from katana_manipulation.testing import place_limit_m
+
+    for spec in ROBOT_PARAMS:
+        assert spec in SKILL_PARAMS and spec in CURIOSITY_PARAMS, spec.name
+    shared = [Parameter("grasp_offset", value=-0.015)]  # a lower grip: a taller stack reachable
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        node = SkillNode(context=ctx, parameter_overrides=[
+            Parameter("reset_service", value="katana_driver_node/reset_world"), *shared])
+        executor = PickPlaceExecutor(context=ctx, parameter_overrides=shared)
+        assert node.environment.config.reset_service == "katana_driver_node/reset_world"
+        assert node.params["ready_timeout_s"] == node.params.spec("ready_timeout_s").default
+        near, far = node.place_reach_m[3]
+        limit = place_limit_m(executor.planner.p, 3, inside=0.5 * (near + far))
+        assert limit - 0.01 <= far <= limit
+        assert far > place_limit_m(PickPlaceParams(), 3, inside=0.15) + 0.02
+        node.stop()
+        node.destroy_node()
+        executor.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)

@@ -1,4 +1,4 @@
-"""The arm contract: how every backend (sim_node, katana_driver_node) answers arm and gripper goals.
+"""The arm contract: how every backend (sim_node, katana_driver_node) answers arm goals.
 
 ROS-free, so both nodes answer every goal the same way and the rules are tested without ROS.
 Joint names, limits and speeds come from :mod:`katana_description.models`; error codes are
@@ -36,21 +36,11 @@ API (stable; plain Python in, plain Python out):
   last point the goal succeeds once every joint is within its goal tolerance and ``at_rest``
   (the backend's own "motion finished" signal), and fails with GOAL_TOLERANCE_VIOLATED after
   ``goal_time_s`` more. Errors are plain differences ``actual - desired`` (see wrapping above).
-- ``GripperGoal(position, max_effort=0.0)`` (rad, N m; 0 = the backend's default effort);
-  ``validate_gripper(goal, arm_active=False) -> Verdict``: finite position within
-  [GRIPPER_CLOSED, GRIPPER_OPEN], finite max_effort >= 0, and no gripper goal while an arm
-  goal is active (the hardware cannot run both at once; the simulation refuses it too).
-  GripperCommand has no error code: a refusal is an aborted goal with this reason, and
-  ``Verdict.error_code`` is INVALID_GOAL.
-- ``GripperJudge(goal, start_position, contract)``: ``check(elapsed_s, position, speed,
-  at_rest=True) -> GripperOutcome``. Reached (succeeded, reached_goal) within
-  ``gripper_tolerance_rad`` once ``at_rest`` (the backend's "motor stopped"); stalled
-  (succeeded, stalled: the fingers stopped on something, a grasp) when slower than
-  ``gripper_stall_speed`` for ``gripper_stall_time_s`` while behind the ideal ramp to the goal
-  at the finger speed limit; after that ramp plus ``gripper_timeout_s`` it reports stalled.
-- ``Outcome``/``GripperOutcome``: ``status`` (RUNNING, SUCCEEDED, ABORTED, CANCELED),
-  ``error_code``, ``message``; ``done``. ``hermite_peak_speed`` and ``joint_error`` are the
-  helpers the rules use.
+- ``Outcome``: ``status`` (RUNNING, SUCCEEDED, ABORTED, CANCELED), ``error_code``,
+  ``message``; ``done``. ``hermite_peak_speed`` and ``joint_error`` are the helpers the rules
+  use.
+
+The gripper's goals follow the same contract in :mod:`katana_description.gripper_contract`.
 """
 
 from __future__ import annotations
@@ -81,9 +71,6 @@ LIMIT_SLACK_RAD = 1e-6
 START_JUMP_RAD = 0.05
 #: The last point's velocities must be zero to within this (rad/s).
 REST_SPEED_RAD_S = 1e-9
-#: Fingers lagging the ideal ramp by more than this are "behind" (for the stall rule), rad.
-GRIPPER_LAG_RAD = 0.05
-
 Tolerances = Mapping[str, float] | Sequence[tuple[str, float]]
 
 
@@ -154,35 +141,22 @@ class TrajectoryGoal:
     goal_time_tolerance_s: float = 0.0
 
 
-@dataclass(frozen=True)
-class GripperGoal:
-    position: float
-    max_effort: float = 0.0
+@dataclass
+class GoalOutcome:
+    """A judge's report on a goal: its `status`, RUNNING until the goal ends (`done`). The
+    arm's Outcome and the gripper's GripperOutcome add what they report besides."""
+
+    status: str = RUNNING
+
+    @property
+    def done(self) -> bool:
+        return self.status != RUNNING
 
 
 @dataclass
-class Outcome:
-    status: str = RUNNING
+class Outcome(GoalOutcome):
     error_code: int = SUCCESSFUL
     message: str = ""
-
-    @property
-    def done(self) -> bool:
-        return self.status != RUNNING
-
-
-@dataclass
-class GripperOutcome:
-    status: str = RUNNING
-    position: float = 0.0
-    effort: float = 0.0
-    stalled: bool = False
-    reached_goal: bool = False
-    message: str = ""
-
-    @property
-    def done(self) -> bool:
-        return self.status != RUNNING
 
 
 def hermite_peak_speed(p0: float, p1: float, v0: float, v1: float, h: float) -> float:
@@ -443,80 +417,4 @@ class TrajectoryJudge:
         """The backend ends the goal for its own reason (lost link, collision, timeout)."""
         if not self.outcome.done:
             self.outcome = Outcome(ABORTED, error_code, message)
-        return self.outcome
-
-
-def validate_gripper(goal: GripperGoal, arm_active: bool = False) -> Verdict:
-    """OK, or INVALID_GOAL and the reason a gripper goal is refused."""
-    lo, hi = m.GRIPPER_CLOSED, m.GRIPPER_OPEN
-    pos, effort = float(goal.position), float(goal.max_effort)
-    if not math.isfinite(pos) or not lo - LIMIT_SLACK_RAD <= pos <= hi + LIMIT_SLACK_RAD:
-        return Verdict(INVALID_GOAL, f"gripper position {pos} rad outside [{lo}, {hi}]")
-    if not (math.isfinite(effort) and effort >= 0.0):
-        return Verdict(INVALID_GOAL, f"max_effort {effort} N m must be finite and >= 0")
-    if arm_active:
-        return Verdict(INVALID_GOAL, "an arm trajectory is running; send the gripper goal after it")
-    return OK
-
-
-class GripperJudge:
-    """Completion of one validated gripper goal (see the module docstring for the rules)."""
-
-    def __init__(self, goal: GripperGoal, start_position: float, contract: ArmContract) -> None:
-        self.goal = min(m.GRIPPER_OPEN, max(m.GRIPPER_CLOSED, float(goal.position)))
-        self.effort = float(goal.max_effort)
-        self.start = float(start_position)
-        self.speed = m.JOINT_MAX_SPEED[m.FINGER_JOINTS[0]]
-        self.ramp_s = abs(self.goal - self.start) / self.speed
-        self.c = contract
-        self._still_since: float | None = None
-        self.outcome = GripperOutcome()
-
-    @property
-    def time_limit_s(self) -> float:
-        """After this the judge has answered, whatever the fingers do."""
-        return self.ramp_s + self.c.gripper_timeout_s
-
-    def ideal(self, elapsed_s: float) -> float:
-        """Where fingers at the finger speed limit would be ``elapsed_s`` after the start."""
-        span = self.goal - self.start
-        return self.start + math.copysign(min(self.speed * max(elapsed_s, 0.0), abs(span)), span)
-
-    def check(self, elapsed_s: float, position: float, speed: float,
-              at_rest: bool = True) -> GripperOutcome:
-        """``at_rest``: the backend's own "motor stopped" signal; reached needs it."""
-        if self.outcome.done:
-            return self.outcome
-        pos = float(position)
-        if at_rest and abs(pos - self.goal) <= self.c.gripper_tolerance_rad:
-            self.outcome = GripperOutcome(SUCCEEDED, pos, self.effort, False, True, "")
-            return self.outcome
-        behind = elapsed_s >= self.ramp_s or abs(self.ideal(elapsed_s) - pos) > GRIPPER_LAG_RAD
-        if behind and abs(speed) < self.c.gripper_stall_speed:
-            if self._still_since is None:
-                self._still_since = elapsed_s
-            elif elapsed_s - self._still_since >= self.c.gripper_stall_time_s:
-                self.outcome = GripperOutcome(
-                    SUCCEEDED, pos, self.effort, True, False, "fingers stalled before the goal"
-                )
-                return self.outcome
-        else:
-            self._still_since = None
-        if elapsed_s > self.time_limit_s:
-            self.outcome = GripperOutcome(
-                SUCCEEDED,
-                pos,
-                self.effort,
-                True,
-                False,
-                "fingers did not settle; reporting stalled",
-            )
-        return self.outcome
-
-    def end(self, status: str, position: float, message: str) -> GripperOutcome:
-        """The backend ends the goal itself (canceled, lost link, collision)."""
-        if not self.outcome.done:
-            self.outcome = GripperOutcome(
-                status, float(position), self.effort, False, False, message
-            )
         return self.outcome

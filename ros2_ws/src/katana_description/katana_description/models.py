@@ -100,7 +100,6 @@ MASSES: dict[str, float] = {
 #: camera's view (the ROS 1 driver's park pose leaves the forearm in the default image). It is
 #: also the pick-and-place transit pose at that pan angle, so leaving it needs no extra move.
 PARK_POSE: tuple[float, ...] = (-3.0, 1.6447, -1.3766, 1.8389, 0.0)
-ROS1_PARK_POSE: tuple[float, ...] = (-3.022, 2.163, -2.207, -2.026, -2.990)
 GRIPPER_OPEN = 0.30
 GRIPPER_CLOSED = -0.44
 

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from katana_description import arm_contract as ac
+from katana_description import gripper_contract as gc
 from katana_description import models as m
 
 CONTRACT = ac.ArmContract()
@@ -289,7 +290,7 @@ def test_errors_are_not_wrapped_on_bounded_joints():
 @settings(max_examples=200, deadline=None)
 @given(pos=_any_float, effort=_any_float, arm=st.booleans())
 def test_gripper_validation(pos, effort, arm):
-    verdict = ac.validate_gripper(ac.GripperGoal(pos, effort), arm_active=arm)
+    verdict = gc.validate_gripper(gc.GripperGoal(pos, effort), arm_active=arm)
     ok = (
         math.isfinite(pos)
         and m.GRIPPER_CLOSED - 1e-6 <= pos <= m.GRIPPER_OPEN + 1e-6
@@ -314,7 +315,7 @@ def test_gripper_judge_reaches_or_stalls(start, goal, block_frac):
     dt = 0.01
     speed = m.JOINT_MAX_SPEED["katana_r_finger_joint"]
     # Free fingers following the ideal ramp reach the goal.
-    judge = ac.GripperJudge(ac.GripperGoal(goal), start, contract)
+    judge = gc.GripperJudge(gc.GripperGoal(goal), start, contract)
     t, out = 0.0, judge.outcome
     while not out.done:
         t += dt
@@ -325,7 +326,7 @@ def test_gripper_judge_reaches_or_stalls(start, goal, block_frac):
     if abs(goal - start) < 0.2:
         return
     stop = start + block_frac * (goal - start)
-    judge = ac.GripperJudge(ac.GripperGoal(goal), start, contract)
+    judge = gc.GripperJudge(gc.GripperGoal(goal), start, contract)
     t, pos, out = 0.0, start, judge.outcome
     while not out.done:
         t += dt

@@ -121,7 +121,6 @@ class KatanaEmulator:
         self._pty: tuple[int, int] | None = None
         self.address: tuple[str, int] | None = None
         self.serial_device: str | None = None
-        self.replies_sent = 0
 
     # ------------------------------------------------------------------ replies
     def _respond(self, parser: _FrameParser, data: bytes, write: Callable[[bytes], None]) -> None:
@@ -152,7 +151,6 @@ class KatanaEmulator:
             write(reply[half:])
         else:
             write(reply)
-        self.replies_sent += 1
 
     # ------------------------------------------------------------------ TCP
     def serve_tcp(self, host: str = "127.0.0.1", port: int = 0) -> tuple[str, int]:
@@ -282,21 +280,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
 
-    model = KatanaModel(
-        katana_type=args.type,
-        variant=args.variant,
-        time_scale=args.time_scale,
-        calibration_s=args.calibration_time,
-        calibrated=args.calibrated,
-    )
-    faults = Faults(
-        latency_s=args.latency,
-        split_replies=args.split,
-        silent_rate=args.silent_rate,
-        corrupt_rate=args.corrupt_rate,
-        spline_latency_s=args.spline_latency,
-        seed=args.seed,
-    )
+    model = KatanaModel(katana_type=args.type, variant=args.variant, time_scale=args.time_scale,
+                        calibration_s=args.calibration_time, calibrated=args.calibrated)
+    faults = Faults(latency_s=args.latency, split_replies=args.split,
+                    silent_rate=args.silent_rate, corrupt_rate=args.corrupt_rate,
+                    spline_latency_s=args.spline_latency, seed=args.seed)
     emulator = KatanaEmulator(model, faults)
     print("=" * 72, flush=True)
     print(BANNER, flush=True)

@@ -88,11 +88,9 @@ class KatanaModel:
         self.collision_detection = False
         self.gripper_stall_at: int | None = None  # closing fingers stop here (a held block)
         self.last_error: tuple[int, int, int, str] = (0, 0, 0, "No error")
-        self.commands_seen = 0
         self.duplicated_segments = 0
         self.max_speed_ratio = 0.0  # largest per-tick step / the joint's speed limit
         self.max_speed_motor = 0  # the motor (1..6) that made it
-        self.segments_received = 0
         self._last_row: tuple | None = None
         self._clock = clock
         self._t0 = clock()
@@ -144,7 +142,6 @@ class KatanaModel:
             self.advance()
             self.duplicated_segments = 0
             self.max_speed_ratio = 0.0
-            self.segments_received = 0
 
     def _step(self, m: _Motor, tick: float) -> None:
         before, was_calibrating = m.pos, m.status == p.STATUS_CALIBRATING
@@ -240,7 +237,6 @@ class KatanaModel:
         """Reply payload to one request payload, or b'\\xc0' when the command is refused."""
         with self._lock:
             self.advance()
-            self.commands_seen += 1
             cmd = payload[0]
             try:
                 expected = p.REQUEST_LENGTHS.get(cmd)
@@ -309,7 +305,6 @@ class KatanaModel:
                 self._last_row = None
                 for m in self.motors:
                     m.last_row_reset = False
-            self.segments_received += 1
             holding = all(sg.p1 == sg.p2 == sg.p3 == 0 and sg.p0 == sg.target for sg in segments)
             if row == self._last_row and not holding:  # a repeated hold moves nothing
                 self.duplicated_segments += 1

@@ -14,12 +14,13 @@ import sys
 import threading
 import time
 
-from katana_common.conversions import time_msg
 from katana_common.executor import MultiThreadedExecutor
+from katana_common.messages import time_msg
 from katana_common.node_runner import run_node
 from katana_common.params import declare_parameters
 from katana_common.qos import JOINT_STATE_QOS, STATE_QOS
 from katana_description import arm_contract as ac
+from katana_description import gripper_contract as gc
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.srv import ResetWorld, SetMotors
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -130,7 +131,7 @@ class KatanaDriverNode(Node):
                 self.worker.stop_motion().result(timeout=0.8)
             except Exception:  # noqa: BLE001 - shutting down: the worker's close ends the link
                 pass
-        self.worker.stop(timeout=0.5)  # within issue 10's 2 s with the executor's 0.5 s
+        self.worker.stop(timeout=0.5)  # with the executor's 0.5 s: within a node's 2 s to end
 
     def destroy_node(self) -> None:
         self.stop()
@@ -177,12 +178,12 @@ class KatanaDriverNode(Node):
 
     def _execute_gripper(self, goal_handle) -> GripperCommand.Result:
         goal = msgs.gripper_goal(goal_handle.request)
-        verdict = ac.validate_gripper(goal)
+        verdict = gc.validate_gripper(goal)
         busy = self._claim(arm=False) if verdict.ok else verdict.error_string
         if busy:
             state = self.worker.state
             position = state.positions[5] if state is not None else 0.0
-            outcome = ac.GripperOutcome(ac.ABORTED, position, message=busy)
+            outcome = gc.GripperOutcome(ac.ABORTED, position, message=busy)
         else:
             try:
                 with self.worker.busy():

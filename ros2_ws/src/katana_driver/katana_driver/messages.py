@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import math
 
-from katana_common.conversions import duration_msg, to_seconds
+from katana_common.messages import duration_msg, to_seconds
 from katana_description import arm_contract as ac
+from katana_description import gripper_contract as gc
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from trajectory_msgs.msg import JointTrajectoryPoint
 
@@ -53,15 +54,15 @@ def trajectory_result(outcome: ac.Outcome) -> FollowJointTrajectory.Result:
                                         error_string=outcome.message)
 
 
-def gripper_goal(msg: GripperCommand.Goal) -> ac.GripperGoal:
-    return ac.GripperGoal(position=msg.command.position, max_effort=msg.command.max_effort)
+def gripper_goal(msg: GripperCommand.Goal) -> gc.GripperGoal:
+    return gc.GripperGoal(position=msg.command.position, max_effort=msg.command.max_effort)
 
 
-def gripper_result(outcome: ac.GripperOutcome) -> GripperCommand.Result:
+def gripper_result(outcome: gc.GripperOutcome) -> GripperCommand.Result:
     return GripperCommand.Result(position=float(outcome.position), effort=float(outcome.effort),
                                  stalled=outcome.stalled, reached_goal=outcome.reached_goal)
 
 
-def gripper_feedback(outcome: ac.GripperOutcome) -> GripperCommand.Feedback:
+def gripper_feedback(outcome: gc.GripperOutcome) -> GripperCommand.Feedback:
     return GripperCommand.Feedback(position=float(outcome.position), effort=float(outcome.effort),
                                    stalled=outcome.stalled, reached_goal=outcome.reached_goal)

@@ -1,4 +1,5 @@
-"""Fault cases of the driver against the EMULATOR, shared by the tests and bench/bench_driver.py.
+"""Fault cases of the driver against the EMULATOR, shared by the tests and bench/bench_driver.py
+(test support: no node or launch file imports it).
 
 Each case runs katana_driver_node in-process (own Context) against a KatanaEmulator, sends one
 trajectory goal, turns one fault knob on (from the start, or mid-trajectory), and records what
@@ -9,6 +10,7 @@ goal ended (``outcome``), and whether the node then served the next goal (the fa
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import time
@@ -17,8 +19,9 @@ from dataclasses import dataclass
 
 import rclpy
 from katana_common.action_client import ActionClient
-from katana_common.conversions import duration_msg
 from katana_common.executor import MultiThreadedExecutor
+from katana_common.messages import duration_msg
+from katana_common.testing import spin_until
 from katana_interfaces.action import FollowJointTrajectory
 from rclpy.action.client import GoalStatus
 from rclpy.context import Context
@@ -144,14 +147,7 @@ class FaultBench:
         self.executor = MultiThreadedExecutor(num_threads=4, context=self.ctx)
         self.executor.add_node(self.driver)
         self.executor.add_node(self.client)
-
-    def spin_until(self, predicate: Callable[[], bool], limit_s: float) -> bool:
-        deadline = time.monotonic() + limit_s
-        while time.monotonic() < deadline:
-            if predicate():
-                return True
-            self.executor.spin_once(timeout_sec=0.02)
-        return predicate()
+        self.spin_until = functools.partial(spin_until, self.executor)
 
     def wait_ready(self, limit_s: float = 15.0) -> bool:
         return self.spin_until(

@@ -1,60 +1,53 @@
 """The hardware backend alone: katana_driver_node and camera_node (needs a full ROS 2 install).
 
 ros2 launch katana_driver katana_hardware.launch.py host:=192.168.1.1 device:=/dev/video0
+
+Every parameter comes from `config` (config/hardware.yaml, generated from the nodes' specs);
+an argument given here overrides its one parameter, an argument left out leaves the file's
+value (the defaults are stated once, in the specs, not again here).
 """
 
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+
+#: launch argument -> (node, description); each sets the node's parameter of the same name
+OVERRIDES = {
+    "host": ("katana_driver_node", "Katana 400/450 controller address"),
+    "transport": ("katana_driver_node", "tcp (400/450) or serial (300)"),
+    "serial_device": ("katana_driver_node", "Katana 300 serial device"),
+    "device": ("camera_node", "overhead camera device"),
+    "camera_info_file": ("camera_node", "camera_calibration YAML"),
+}
+
+
+def _nodes(context) -> list:
+    cfg = LaunchConfiguration("config").perform(context)
+    ns = LaunchConfiguration("namespace").perform(context)
+    nodes = []
+    for node in ("katana_driver_node", "camera_node"):
+        given = {name: LaunchConfiguration(name).perform(context)
+                 for name, (owner, _) in OVERRIDES.items() if owner == node}
+        given = {name: value for name, value in given.items() if value}
+        package = "katana_driver" if node == "katana_driver_node" else "katana_camera"
+        nodes.append(Node(package=package, executable=node, name=node, namespace=ns,
+                          output="screen", parameters=[cfg, *([given] if given else [])]))
+    return nodes
 
 
 def generate_launch_description() -> LaunchDescription:
     config = os.path.join(get_package_share_directory("katana_driver"), "config", "hardware.yaml")
-    args = {
-        "config": (config, "parameter YAML of the driver and the camera"),
-        "namespace": ("", "namespace of both nodes"),
-        "host": ("192.168.1.1", "Katana 400/450 controller address"),
-        "transport": ("tcp", "tcp (400/450) or serial (300)"),
-        "serial_device": ("/dev/ttyUSB0", "Katana 300 serial device"),
-        "device": ("/dev/video0", "overhead camera device"),
-        "camera_info_file": ("", "camera_calibration YAML ('' = nominal intrinsics)"),
-    }
     declared = [
-        DeclareLaunchArgument(k, default_value=v, description=d) for k, (v, d) in args.items()
+        DeclareLaunchArgument("config", default_value=config,
+                              description="parameter YAML of the driver and the camera"),
+        DeclareLaunchArgument("namespace", default_value="", description="namespace of both nodes"),
+    ] + [
+        DeclareLaunchArgument(name, default_value="",
+                              description=f"{text} ('': the config file's)")
+        for name, (_, text) in OVERRIDES.items()
     ]
-    cfg = LaunchConfiguration("config")
-    ns = LaunchConfiguration("namespace")
-    driver = Node(
-        package="katana_driver",
-        executable="katana_driver_node",
-        name="katana_driver_node",
-        namespace=ns,
-        output="screen",
-        parameters=[
-            cfg,
-            {
-                "host": LaunchConfiguration("host"),
-                "transport": LaunchConfiguration("transport"),
-                "serial_device": LaunchConfiguration("serial_device"),
-            },
-        ],
-    )
-    camera = Node(
-        package="katana_camera",
-        executable="camera_node",
-        name="camera_node",
-        namespace=ns,
-        output="screen",
-        parameters=[
-            cfg,
-            {
-                "device": LaunchConfiguration("device"),
-                "camera_info_file": LaunchConfiguration("camera_info_file"),
-            },
-        ],
-    )
-    return LaunchDescription([*declared, driver, camera])
+    return LaunchDescription([*declared, OpaqueFunction(function=_nodes)])

@@ -1,8 +1,8 @@
 """Every command through the emulator over TCP and a pseudo-terminal; the error path; faults."""
 
-import time
 
 import pytest
+from katana_common.testing import wait_until
 from katana_driver.core import protocol as p
 from katana_driver.core.client import KatanaClient
 from katana_driver.core.splines import hermite_segment, hold_segment
@@ -20,21 +20,11 @@ def tcp_client(emulator, timeout=0.3, retries=3):
     return client
 
 
-def wait_for(predicate, limit=200, pause=0.01):
-    """Poll ``predicate`` a bounded number of times."""
-    for _ in range(limit):
-        value = predicate()
-        if value:
-            return value
-        time.sleep(pause)
-    return predicate()
-
-
 def calibrated_client(make_emulator, **kwargs):
     emulator = make_emulator(**kwargs)
     client = tcp_client(emulator)
     client.calibrate()
-    assert wait_for(lambda: all(s == p.STATUS_HOLDING for s in client.read_status()))
+    assert wait_until(lambda: all(s == p.STATUS_HOLDING for s in client.read_status()))
     return emulator, client
 
 
@@ -60,7 +50,7 @@ def test_calibration_runs_and_ends_at_the_stops(make_emulator):
     client = tcp_client(emulator)
     client.calibrate()
     assert client.read_status() == [p.STATUS_CALIBRATING] * 6
-    assert wait_for(lambda: client.read_status() == [p.STATUS_HOLDING] * 6)
+    assert wait_until(lambda: client.read_status() == [p.STATUS_HOLDING] * 6)
     assert client.read_positions() == list(ENCODER_OFFSETS)
 
 
@@ -71,11 +61,11 @@ def test_motor_commands_round_trip(make_emulator):
     assert emulator.model.motors[0].speed_limit == 150
     client.move_motor(1, 25000)
     assert client.read_motor(1).status == p.STATUS_MOVING
-    assert wait_for(lambda: client.read_motor(1).status == p.STATUS_HOLDING)
+    assert wait_until(lambda: client.read_motor(1).status == p.STATUS_HOLDING)
     state = client.read_motor(1)
     assert state.position == 25000 and state.velocity == 0
     client.hold_motor(2, -30000)
-    assert wait_for(lambda: client.read_positions()[1] == -30000)
+    assert wait_until(lambda: client.read_positions()[1] == -30000)
     client.set_encoder(4, 1234)
     assert client.read_positions()[3] == 1234
     client.motor_off(3)
@@ -94,7 +84,7 @@ def test_spline_queue_g_and_h(make_emulator):
     client.send_spline(1, seg)
     assert client.read_status()[0] == p.STATUS_HOLDING  # queued, not started
     client.start_splines()
-    assert wait_for(lambda: client.read_status()[0] == p.STATUS_SPLINE_DONE)
+    assert wait_until(lambda: client.read_status()[0] == p.STATUS_SPLINE_DONE)
     assert client.read_positions()[0] == start[0] - 2000
 
     now = client.read_positions()
@@ -105,7 +95,7 @@ def test_spline_queue_g_and_h(make_emulator):
     segs2 = [hold_segment(e, 30) for e in client.read_positions()]
     segs2[1] = hold_segment(now[1] + 3000, 30)
     client.send_spline_all(segs2, p.ACTIVITY_LAST)
-    assert wait_for(lambda: client.read_status()[1] == p.STATUS_SPLINE_DONE)
+    assert wait_until(lambda: client.read_status()[1] == p.STATUS_SPLINE_DONE)
     assert client.read_positions()[1] == now[1] + 3000
 
 
@@ -228,11 +218,11 @@ def test_a_segment_sent_twice_is_counted_and_shows_as_a_jump(make_emulator):
     segs[0] = hermite_segment(now[0], now[0] - int(0.6 * speed * ticks), 0.0, 0.0, ticks)
     emulator.model.reset_counters()
     client.send_spline_all(segs, p.ACTIVITY_START)
-    wait_for(lambda: client.read_status()[0] == p.STATUS_SPLINE_DONE)
+    wait_until(lambda: client.read_status()[0] == p.STATUS_SPLINE_DONE)
     assert emulator.model.duplicated_segments == 0
     assert 0.8 < emulator.model.max_speed_ratio <= 1.0  # 0.6 x mean, x 1.5 at the peak
     client.send_spline_all(segs, p.ACTIVITY_START)  # the same segment again
-    wait_for(lambda: client.read_status()[0] == p.STATUS_SPLINE_DONE)
+    wait_until(lambda: client.read_status()[0] == p.STATUS_SPLINE_DONE)
     assert emulator.model.duplicated_segments == 1
     assert emulator.model.max_speed_ratio > 5.0
     client.flush_buffers()  # after a flush, the same row is a new command, not a duplicate

@@ -1,8 +1,8 @@
 """katana_driver_node in-process against the emulator: the sim_node interfaces, refusals, faults."""
 
+import functools
 import itertools
 import math
-import time
 
 import pytest
 import rclpy
@@ -10,9 +10,10 @@ from builtin_interfaces.msg import Duration
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from katana_common.action_client import ActionClient
-from katana_common.conversions import duration_msg
 from katana_common.executor import MultiThreadedExecutor
+from katana_common.messages import duration_msg
 from katana_common.params import ParameterError
+from katana_common.testing import call_service, spin_until
 from katana_driver.core import protocol as p
 from katana_driver.core.encoders import ALL_JOINTS, ARM_JOINTS
 from katana_driver.katana_driver_node import KatanaDriverNode
@@ -50,6 +51,7 @@ class Graph:
         self.executor = MultiThreadedExecutor(num_threads=4, context=self.ctx)
         self.executor.add_node(self.driver)
         self.executor.add_node(self.client)
+        self.spin_until = functools.partial(spin_until, self.executor, timeout_s=20.0)
         self.states: list[JointState] = []
         self.client.create_subscription(JointState, "joint_states", self.states.append, 10)
         self.arm = ActionClient(
@@ -61,15 +63,6 @@ class Graph:
         base = f"katana_driver_test_{n}"
         self.set_motors = self.client.create_client(SetMotors, f"{base}/set_motors")
         self.reset_world = self.client.create_client(ResetWorld, f"{base}/reset_world")
-
-    def spin_until(self, predicate, limit_s=20.0):
-        """Spin in slices of at most 50 ms until ``predicate`` holds or ``limit_s`` passed."""
-        deadline = time.monotonic() + limit_s
-        while time.monotonic() < deadline:
-            if predicate():
-                return True
-            self.executor.spin_once(timeout_sec=0.05)
-        return predicate()
 
     def ready(self):
         # ready and every arm motor holding: calibration's last moves may still be running
@@ -86,14 +79,11 @@ class Graph:
         handle = sent.result()
         assert handle.accepted
         result = handle.get_result_async()
-        assert self.spin_until(result.done, limit_s)
+        assert self.spin_until(result.done, timeout_s=limit_s)
         return result.result()
 
     def call(self, client, request):
-        assert self.spin_until(client.service_is_ready)
-        future = client.call_async(request)
-        assert self.spin_until(future.done)
-        return future.result()
+        return call_service(self.executor, client, request, timeout_s=20.0)
 
     def close(self):
         self.executor.shutdown()

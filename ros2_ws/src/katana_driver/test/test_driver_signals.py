@@ -1,6 +1,6 @@
 """SIGINT and SIGTERM end katana_driver_node (a separate process, as ros2 launch starts it)
 cleanly, with exit code 0 and no traceback: idle, and in the middle of a trajectory goal, after
-which the arm holds. How fast (issue 10: within 2 s) is measured by bench/bench_driver.py
+which the arm holds. How fast (within 2 s, docs/hardware.md) is measured by bench/bench_driver.py
 (shutdown_s); here a generous bound only tells a hang from a slow machine."""
 
 import signal

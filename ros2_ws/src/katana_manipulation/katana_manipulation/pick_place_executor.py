@@ -34,30 +34,31 @@ from sensor_msgs.msg import JointState
 
 from katana_manipulation.core import pick_place as pp
 from katana_manipulation.core.kinematics import KatanaKinematics
+from katana_manipulation.reach_params import REACH_PARAMS, planner_values
 from katana_manipulation.ros_arm_port import ARM_ACTION, GRIPPER_ACTION, RosArmPort
 
-#: planner parameters applied live (the next goal plans with them)
-PLANNER_PARAMS = {"approach_height": "approach_height", "transit_height": "transit_height",
-                  "transit_radius": "transit_radius", "grasp_offset": "grasp_offset",
-                  "speed_fraction": "speed_fraction", "min_segment_time_s": "min_segment_time"}
+_DEFAULTS = pp.PickPlaceParams()
+#: planner parameters applied live (the next goal plans with them): parameter -> planner field
+LIVE_PLANNER_PARAMS = {"transit_height": "transit_height", "transit_radius": "transit_radius",
+                       "speed_fraction": "speed_fraction",
+                       "min_segment_time_s": "min_segment_time"}
 PARAMS = (
     Param("model", m.DEFAULT_MODEL, "Katana type (read-only: the kinematics are built once).",
           choices=tuple(sorted(m.MODELS))),
-    Param("approach_height", 0.06, "Descend onto a block from this far above, m.", 0.01, 0.2,
-          live=True),
-    Param("transit_height", 0.15, "Tool height while panning between places, m (the arm "
-          "reaches 0.13 m top-down; the shoulder lifts the pads further).", 0.05, 0.2, live=True),
-    Param("transit_radius", 0.12, "Tool distance from the pan axis while panning, m.", 0.05, 0.3,
-          live=True),
-    Param("grasp_offset", 0.003, "Tool point above the block centre when grasping, m.",
-          -0.02, 0.02, live=True),
-    Param("speed_fraction", 0.9, "Fraction of each joint's speed limit at a move's peak.",
-          0.05, 1.0, live=True),
-    Param("min_segment_time_s", 0.2, "Shortest trajectory segment, s. The driver merges spline "
-          "knots closer than 0.2 s, so shorter ones can speed the real arm up between points; "
-          "the simulation runs 0.1 (sim.yaml).", 0.02, 1.0, live=True),
-    Param("park_pose", list(m.PARK_POSE), "Five arm joint angles out of the camera's view, rad "
-          "(read-only).", -math.pi, math.pi, length=5),
+    *REACH_PARAMS,  # read-only, shared with the nodes that offer placements
+    Param("transit_height", _DEFAULTS.transit_height, "Tool height while panning between "
+          "places, m (the arm reaches 0.13 m top-down; the shoulder lifts the pads further).",
+          0.05, 0.2, live=True),
+    Param("transit_radius", _DEFAULTS.transit_radius, "Tool distance from the pan axis while "
+          "panning, m.", 0.05, 0.3, live=True),
+    Param("speed_fraction", _DEFAULTS.speed_fraction, "Fraction of each joint's speed limit at "
+          "a move's peak.", 0.05, 1.0, live=True),
+    Param("min_segment_time_s", _DEFAULTS.min_segment_time, "Shortest trajectory segment, s. "
+          f"The driver merges spline knots closer than {pp.MIN_SEGMENT_TIME_S} s, so shorter "
+          "ones can speed the real arm up between points; the simulation runs "
+          f"{pp.SIM_MIN_SEGMENT_TIME_S} (sim.yaml).", 0.02, 1.0, live=True),
+    Param("park_pose", list(_DEFAULTS.park_pose), "Five arm joint angles out of the camera's "
+          "view, rad (read-only).", -math.pi, math.pi, length=5),
     Param("server_timeout_s", 5.0, "Wall seconds to wait for an action server or a goal answer.",
           0.1, 120.0, live=True),
     Param("time_scale", 3.0, "A move may take this many times its planned duration (wall).",
@@ -103,11 +104,12 @@ class PickPlaceExecutor(Node):
 
     def _planner_params(self) -> pp.PickPlaceParams:
         return pp.PickPlaceParams(park_pose=list(self.params["park_pose"]),
+                                  **planner_values(self.params),
                                   **{field: self.params[name]
-                                     for name, field in PLANNER_PARAMS.items()})
+                                     for name, field in LIVE_PLANNER_PARAMS.items()})
 
     def _on_params(self, changed: dict) -> None:
-        if any(k in PLANNER_PARAMS for k in changed):  # the next goal plans with them
+        if any(k in LIVE_PLANNER_PARAMS for k in changed):  # the next goal plans with them
             self.planner = pp.PickPlacePlanner(self.kin, self._planner_params())
 
     def stop(self) -> None:

@@ -8,8 +8,8 @@ import time
 
 from action_msgs.msg import GoalStatus
 from katana_common.action_client import ActionClient
-from katana_common.conversions import duration_msg
 from katana_common.futures import Stopped, wait_for_future
+from katana_common.messages import duration_msg
 from katana_description import models as m
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from trajectory_msgs.msg import JointTrajectoryPoint

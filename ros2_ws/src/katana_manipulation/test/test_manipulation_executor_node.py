@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 
 import pytest
 import rclpy
@@ -15,21 +14,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
+from katana_common.testing import wait_until
 from katana_interfaces.action import PickAndPlace
 from katana_manipulation.core import pick_place as pp
-from katana_manipulation.pick_place_executor import PickPlaceExecutor
+from katana_manipulation.pick_place_executor import PARAMS, PickPlaceExecutor
+from katana_manipulation.reach_params import REACH_PARAMS, reach_geometry
 from katana_sim.sim_node import SimNode
 from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-
-
-def wait_for(cond, timeout: float = 20.0):
-    deadline = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < deadline, "condition not met in time"
-        threading.Event().wait(0.005)
 
 
 class Graph:
@@ -59,11 +53,11 @@ class Graph:
     def run(self, goal: PickAndPlace.Goal, timeout: float = 60.0):
         assert self.client.wait_for_server(timeout_sec=5.0)
         fut = self.client.send_goal_async(goal)
-        wait_for(fut.done)
+        assert wait_until(fut.done, 20.0)
         handle = fut.result()
         assert handle.accepted
         res = handle.get_result_async()
-        wait_for(res.done, timeout)
+        assert wait_until(res.done, timeout)
         return res.result()
 
     def close(self) -> None:
@@ -155,7 +149,7 @@ def test_live_parameters_apply_and_read_only_ones_are_refused(sim_graph):
     def set_(name, value):
         req = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
         fut = client.call_async(req)
-        wait_for(fut.done)
+        assert wait_until(fut.done, 20.0)
         return fut.result().results[0]
 
     assert set_("speed_fraction", 0.8).successful
@@ -166,6 +160,51 @@ def test_live_parameters_apply_and_read_only_ones_are_refused(sim_graph):
     ro = set_("model", "400_6m180")
     assert not ro.successful and "read-only" in ro.reason
     assert set_("speed_fraction", 0.9).successful
+    # the geometry the reach depends on is set once for the graph, at start-up
+    for name in ("grasp_offset", "approach_height"):
+        ro = set_(name, 0.01)
+        assert not ro.successful and "read-only" in ro.reason, name
+    assert executor.planner.p.geometry == pp.PickPlaceParams().geometry
+
+
+def test_the_executor_plans_with_its_geometry_and_checks_the_reach_with_it():
+    """grasp_offset and approach_height given at start-up (as graph.yaml's `/**` gives them to
+    every node) reach the planner, and the executor refuses a place that their reach excludes
+    though the default geometry's reach includes it."""
+    from katana_manipulation.core.reach import place_reach
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        executor = PickPlaceExecutor(context=ctx, parameter_overrides=[
+            Parameter("grasp_offset", value=0.012), Parameter("approach_height", value=0.045)])
+        p = executor.planner.p
+        assert (p.grasp_offset, p.approach_height) == (0.012, 0.045)
+        assert reach_geometry(executor.params) == p.geometry
+        narrow, wide = place_reach(3, 0.03, geometry=p.geometry), place_reach(3, 0.03)
+        r = 0.5 * (narrow.max_m + wide.max_m)
+        req = pp.PickPlaceRequest(TABLE, 0.0, (0.04, 0.04, 0.03), (r, 0.0, 0.105), 0.0)
+        with pytest.raises(pp.PlanError, match="outside the reach"):
+            executor.planner.plan(req, pp.PickPlaceParams().park_pose)
+        pp.PickPlacePlanner().plan(req, pp.PickPlaceParams().park_pose)  # the default: in reach
+        executor.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def test_the_shared_geometry_is_one_definition_and_every_node_accepts_it():
+    """REACH_PARAMS are the executor's own specs, their defaults are the planner's, and
+    katana_common lets every other node receive them under `/**` without declaring them."""
+    from katana_common import params as common
+
+    by_name = {p.name: p for p in PARAMS}
+    assert all(by_name[p.name] is p for p in REACH_PARAMS)
+    assert tuple(sorted(p.name for p in REACH_PARAMS)) == tuple(sorted(
+        common.GRAPH_WIDE_GEOMETRY))
+    defaults = pp.PickPlaceParams()
+    assert all(p.default == getattr(defaults, p.name) and not p.live for p in REACH_PARAMS)
+    assert by_name["min_segment_time_s"].default == defaults.min_segment_time \
+        == pp.MIN_SEGMENT_TIME_S
 
 
 def test_missing_arm_gives_a_bounded_timeout():

@@ -70,16 +70,29 @@ def test_plan_respects_limits_speeds_and_descends_vertically():
         assert KIN.tool_position(q)[2] - m.FINGER_PAD_LENGTH / 2 > 0.12
 
 
-class ScriptedPort:
-    """A fake arm whose fingers close further after the grasp: the block slipped."""
+class FakePort:
+    """A fake arm that records its calls: every move succeeds at once, the arm stays at the
+    park pose, and the fingers are at `fingers` (each subclass's grip moves them)."""
 
-    def __init__(self) -> None:
-        self.fingers = 0.3
+    def __init__(self, fingers: float) -> None:
+        self.fingers = fingers
         self.calls: list[str] = []
 
     def move(self, points, times, velocities=None):
         self.calls.append("move")
         return pp.MoveResult(True)
+
+    def joint_positions(self):
+        q = dict(zip(m.ARM_JOINTS, m.PARK_POSE, strict=True))
+        q.update({n: self.fingers for n in m.FINGER_JOINTS})
+        return q
+
+
+class ScriptedPort(FakePort):
+    """A fake arm whose fingers close further after the grasp: the block slipped."""
+
+    def __init__(self) -> None:
+        super().__init__(fingers=0.3)
 
     def grip(self, position, effort):
         self.calls.append(f"grip {position:.2f}")
@@ -89,9 +102,7 @@ class ScriptedPort:
     def joint_positions(self):
         if self.calls.count("move") >= 3:  # during the carry: fingers closed on nothing
             self.fingers = -0.44
-        q = dict(zip(m.ARM_JOINTS, m.PARK_POSE, strict=True))
-        q.update({n: self.fingers for n in m.FINGER_JOINTS})
-        return q
+        return super().joint_positions()
 
 
 def test_slip_and_unresponsive_arm_are_reported():
@@ -115,20 +126,15 @@ def test_slip_and_unresponsive_arm_are_reported():
     assert res.code == pp.TIMEOUT and "joint_states" in res.message
 
 
-class JammedRelease:
+class JammedRelease(FakePort):
     """A fake arm whose fingers stay on the block when asked to open after the grasp, for the
     first `jammed_opens` such goals (the sim's pads can wedge a block that rests on its support)."""
 
     BLOCK = m.finger_angle_for_opening(0.04)
 
     def __init__(self, jammed_opens: int) -> None:
+        super().__init__(fingers=m.GRIPPER_OPEN)
         self.jammed_opens = jammed_opens
-        self.fingers = m.GRIPPER_OPEN
-        self.calls: list[str] = []
-
-    def move(self, points, times, velocities=None):
-        self.calls.append("move")
-        return pp.MoveResult(True)
 
     def grip(self, position, effort):
         self.calls.append(f"grip {position:.3f}")
@@ -141,11 +147,6 @@ class JammedRelease:
             self.fingers = position
         stalled = self.fingers != position
         return pp.GripResult(True, self.fingers, stalled, not stalled)
-
-    def joint_positions(self):
-        q = dict(zip(m.ARM_JOINTS, m.PARK_POSE, strict=True))
-        q.update({n: self.fingers for n in m.FINGER_JOINTS})
-        return q
 
 
 REQ = pp.PickPlaceRequest((0.2, 0.0, 0.015), 0.0, (0.04, 0.04, 0.03), (0.2, 0.1, 0.045), 0.0)

@@ -1,40 +1,41 @@
 """reach.py against the executor's own planner: inside the band every pick and place plans,
-just outside it none does, and the bands shrink with the stack as the arm's geometry says."""
+just outside it none does, and the bands shrink with the stack as the arm's geometry says.
+The band follows the planner's geometry (grasp_offset, approach_height): checked against a
+planner that skips the reach check, so only its inverse kinematics decide."""
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from katana_description import models as m
-from katana_manipulation.core.pick_place import PickPlacePlanner, PickPlaceRequest, PlanError
+from katana_manipulation.core.pick_place import PickPlaceParams, PickPlacePlanner
 from katana_manipulation.core.reach import (
     EMPTY,
     pick_reach,
+    pick_reach_table,
     place_reach,
     place_reach_table,
+)
+from katana_manipulation.testing import (
+    KinematicsOnly,
+    pick_limit_m,
+    place_limit_m,
+    plans,
 )
 
 H = m.BLOCK_SIZE[2]
 PLANNER = PickPlacePlanner()
-START = np.asarray(m.PARK_POSE, float)
+#: a geometry other than the default: the tool grips higher and descends from lower
+CHANGED = PickPlaceParams(approach_height=0.045, grasp_offset=0.012)
+#: the tool grips lower: the arm must stay farther out to reach down to a block on one
+LOWER = PickPlaceParams(grasp_offset=-0.015)
 
 
 def _plans(pick_r: float, pick_level: int, place_r: float, place_height: int,
-           pan: float) -> tuple[bool, str]:
-    req = PickPlaceRequest(
-        pick=(pick_r * math.cos(pan), pick_r * math.sin(pan), (pick_level - 0.5) * H),
-        pick_yaw=0.0, block_size=m.BLOCK_SIZE,
-        place=(place_r * math.cos(-pan), place_r * math.sin(-pan), (place_height + 0.5) * H),
-        place_yaw=0.0)
-    try:
-        PLANNER.plan(req, START)
-    except PlanError as exc:
-        return False, str(exc)
-    return True, ""
+           pan: float, planner: PickPlacePlanner = PLANNER) -> tuple[bool, str]:
+    return plans(planner, pick_r, pick_level, place_r, place_height, pan)
 
 
 def test_bands_shrink_with_the_stack_and_the_top_level_is_out_of_reach():
@@ -69,21 +70,44 @@ def test_every_pick_inside_the_band_plans(level, frac, pan):
     assert ok, (level, r, why)
 
 
-def _planner_limit(plans, inside: float, outside: float = 0.6) -> float:
-    """The farthest radius the planner itself accepts, by bisection (the independent check)."""
-    while outside - inside > 5e-4:
-        mid = 0.5 * (inside + outside)
-        inside, outside = (mid, outside) if plans(mid) else (inside, mid)
-    return inside
-
-
+@pytest.mark.parametrize("params", [PickPlaceParams(), CHANGED, LOWER],
+                         ids=["default", "changed", "lower"])
 @pytest.mark.parametrize("height", [0, 1, 2, 3])
-def test_the_band_ends_within_a_centimetre_of_the_planners_limit(height):
-    band = place_reach(height)
-    limit = _planner_limit(lambda r: _plans(0.2, 1, r, height, 0.3)[0], band.max_m)
+def test_the_band_ends_within_a_centimetre_of_the_planners_limit(height, params):
+    geometry = params.geometry
+    band = place_reach(height, H, geometry=geometry)
+    limit = place_limit_m(params, height, inside=band.max_m)
     assert limit - 0.01 <= band.max_m <= limit
-    assert not _plans(0.2, 1, limit + 0.002, height, 0.3)[0]
+    assert not _plans(0.2, 1, limit + 0.002, height, 0.3, KinematicsOnly(params=params))[0]
     if height < 3:
-        pick = pick_reach(height + 1)
-        limit = _planner_limit(lambda r: _plans(r, height + 1, 0.2, 0, 0.3)[0], pick.max_m)
+        pick = pick_reach(height + 1, H, geometry=geometry)
+        limit = pick_limit_m(params, height + 1, inside=pick.max_m)
         assert limit - 0.01 <= pick.max_m <= limit
+        # and the near edge, where the arm folds too far to reach down
+        near = pick_limit_m(params, height + 1, 0.5 * (pick.min_m + pick.max_m), outside=0.0)
+        assert near <= pick.min_m <= near + 0.01
+
+
+def test_the_bands_follow_the_planners_geometry():
+    """A higher grip leaves less room above a stack: the bands narrow, and the executor's own
+    reach check (with its geometry) refuses what the default geometry allows."""
+    default, changed = place_reach_table(3), place_reach_table(3, geometry=CHANGED.geometry)
+    assert changed != default
+    assert changed[3].max_m < default[3].max_m - 0.02
+    r = 0.5 * (changed[3].max_m + default[3].max_m)
+    assert _plans(0.2, 1, r, 3, 0.3)[0]
+    ok, why = _plans(0.2, 1, r, 3, 0.3, PickPlacePlanner(params=CHANGED))
+    assert not ok and "outside the reach" in why
+    assert not _plans(0.2, 1, r, 3, 0.3, KinematicsOnly(params=CHANGED))[0]
+
+
+def test_no_pick_is_in_reach_when_the_descent_cannot_start_above_the_block():
+    """approach_height shorter than the way up to where the open pads clear the block: the
+    planner has no descent start, and the reach says so instead of offering a band."""
+    low = PickPlaceParams(approach_height=0.03)
+    assert all(b == EMPTY for b in pick_reach_table(3, H, geometry=low.geometry))
+    planner = KinematicsOnly(params=low)
+    for r in np.linspace(0.1, 0.3, 9):
+        ok, why = _plans(float(r), 1, 0.2, 0, 0.3, planner)
+        assert not ok and "no room to approach" in why
+    assert not place_reach(0, H, geometry=low.geometry).empty  # a place needs less room

@@ -7,10 +7,16 @@ import sys
 import time
 
 from katana_common.cli_args import non_negative_int, positive_int, writable_folder
-from katana_curiosity.core.explorer import STRATEGIES
+from katana_curiosity.core.predictors import ALPHA, GAMMA, THETA_ABSTRACT
+from katana_curiosity.core.strategies import STRATEGIES
 from tqdm import tqdm
 
-from .experiments import DEFAULT_METHODS, RunConfig, run, run_many, save_results
+from .claims.cli import add_curiosity_claims, cmd_curiosity_claims
+from .experiments import DEFAULT_STRATEGIES, RunConfig, run, run_many, save_results
+from .sweep import DEFAULT_GRID, DEFAULT_SWEEP_STRATEGIES, SweepSpec, parse_grid_axis, run_sweep
+
+#: experiments per run of `paper`, `explore` and `sweep`
+EXPERIMENTS = 10_000
 
 
 def _discount(text: str) -> float:
@@ -20,12 +26,12 @@ def _discount(text: str) -> float:
     return value
 
 
-def _methods(text: str) -> list[str]:
+def _strategies(text: str) -> list[str]:
     names = [m.strip().lower() for m in text.split(",") if m.strip()]
     unknown = [m for m in names if m not in STRATEGIES]
     if not names or unknown:
         raise argparse.ArgumentTypeError(
-            f"unknown method(s) {', '.join(unknown) or '(none given)'}: "
+            f"unknown strategy(s) {', '.join(unknown) or '(none given)'}: "
             f"choose from {', '.join(sorted(STRATEGIES))}"
         )
     return list(dict.fromkeys(names))
@@ -45,24 +51,30 @@ def _positive_float(text: str) -> float:
     return value
 
 
-def _add_common(p: argparse.ArgumentParser, steps: int, seeds: int, methods: str) -> None:
-    p.add_argument("--steps", type=positive_int, default=steps, help="experiments per run")
-    p.add_argument(
-        "--seeds", type=positive_int, default=seeds, help="runs per method (seeds 0..K-1)"
-    )
+def _grid_axis(text: str) -> tuple[str, tuple]:
+    try:
+        return parse_grid_axis(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _add_runs(p: argparse.ArgumentParser, seeds: int, strategies: str, per: str,
+              where: str = "") -> None:
+    """The options of a set of runs: their length, seeds, strategies and query rule, and
+    the output folder. `--steps` and `--methods` are the old spellings, still accepted."""
+    p.add_argument("--experiments", "--steps", dest="experiments", type=positive_int,
+                   default=EXPERIMENTS, help="experiments per run")
+    p.add_argument("--seeds", type=positive_int, default=seeds, help=f"runs per {per}")
     p.add_argument("--first-seed", type=non_negative_int, default=0, help="first seed, >= 0")
-    p.add_argument("--jobs", type=positive_int, default=1, help="worker processes")
-    p.add_argument(
-        "--methods",
-        type=_methods,
-        default=_methods(methods),
-        help=f"comma-separated, from {','.join(STRATEGIES)}",
-    )
-    p.add_argument("--alpha", type=_positive_float, default=1.0, help="query condition scale")
-    p.add_argument("--theta", type=_unit_interval, default=0.01, help="query threshold, [0, 1]")
-    p.add_argument("--gamma", type=_discount, default=0.95, help="discount factor, [0, 1)")
-    p.add_argument("--out", type=writable_folder, required=True, help="output folder")
-    p.add_argument("--no-figures", action="store_true", help="write summary and CSV only")
+    p.add_argument("--strategies", "--methods", dest="strategies", type=_strategies,
+                   default=_strategies(strategies),
+                   help=f"comma-separated, from {','.join(STRATEGIES)}")
+    p.add_argument("--alpha", type=_positive_float, default=ALPHA,
+                   help=f"query condition scale{where}")
+    p.add_argument("--theta", type=_unit_interval, default=THETA_ABSTRACT,
+                   help=f"query threshold{where}, [0, 1]")
+    p.add_argument("--gamma", type=_discount, default=GAMMA,
+                   help=f"discount factor{where}, [0, 1)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -72,32 +84,26 @@ def build_parser() -> argparse.ArgumentParser:
         "(Ngo et al. 2013, section 3).",
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    paper = sub.add_parser("paper", help="every method on every seed; summary, CSV, Figures 4-9")
-    _add_common(paper, 10_000, 10, ",".join(DEFAULT_METHODS))
+    paper = sub.add_parser("paper", help="every strategy on every seed; summary, CSV, Figures 4-9")
     explore = sub.add_parser("explore", help="one Q1 run with a progress bar, and its figures")
-    _add_common(explore, 10_000, 1, "q1")
+    _add_runs(paper, 10, ",".join(DEFAULT_STRATEGIES), "strategy (seeds 0..K-1)")
+    _add_runs(explore, 1, "q1", "strategy (seeds 0..K-1)")
+    for p in (paper, explore):
+        p.add_argument("--jobs", type=positive_int, default=1, help="worker processes")
+        p.add_argument("--out", type=writable_folder, required=True, help="output folder")
+        p.add_argument("--no-figures", action="store_true", help="write summary and CSV only")
     _add_sweep(sub)
+    add_curiosity_claims(sub)
     return parser
 
 
-def _grid_axis(text: str) -> tuple[str, tuple]:
-    from .sweep import parse_grid_axis
-
-    try:
-        return parse_grid_axis(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
 def _add_sweep(sub) -> None:
-    from .sweep import DEFAULT_GRID, DEFAULT_SWEEP_METHODS
-
     default_grid = " ".join(
         f"--grid {k}={','.join(f'{v:g}' for v in vs)}" for k, vs in DEFAULT_GRID.items()
     )
     p = sub.add_parser(
         "sweep",
-        help="a parameter grid x seeds x methods as Ray tasks; sweep.csv, summary.json, "
+        help="a parameter grid x seeds x strategies as Ray tasks; sweep.csv, summary.json, "
         "sensitivity.png (resumes)",
     )
     p.add_argument(
@@ -107,18 +113,8 @@ def _add_sweep(sub) -> None:
         help=f"NAME=V1,V2,... (repeat per axis; alpha, theta, gamma, n_blocks, n_features); "
         f"default {default_grid}",
     )
-    p.add_argument("--steps", type=positive_int, default=10_000, help="experiments per run")
-    p.add_argument("--seeds", type=positive_int, default=20, help="runs per cell and method")
-    p.add_argument("--first-seed", type=non_negative_int, default=0, help="first seed, >= 0")
-    p.add_argument(
-        "--methods",
-        type=_methods,
-        default=list(DEFAULT_SWEEP_METHODS),
-        help=f"comma-separated, from {','.join(STRATEGIES)}",
-    )
-    p.add_argument("--alpha", type=_positive_float, default=1.0, help="alpha where not swept")
-    p.add_argument("--theta", type=_unit_interval, default=0.01, help="theta where not swept")
-    p.add_argument("--gamma", type=_discount, default=0.95, help="gamma where not swept, [0, 1)")
+    _add_runs(p, 20, ",".join(DEFAULT_SWEEP_STRATEGIES), "cell and strategy",
+              " where not swept")
     p.add_argument("--out", type=writable_folder, required=True,
                    help="output folder (resumed if it exists)")
     p.add_argument(
@@ -133,8 +129,6 @@ def _add_sweep(sub) -> None:
 
 
 def _sweep(args, parser: argparse.ArgumentParser) -> int:
-    from .sweep import DEFAULT_GRID, SweepSpec, run_sweep
-
     grid = dict(args.grid) if args.grid else dict(DEFAULT_GRID)
     if args.grid and len(grid) != len(args.grid):
         parser.error("argument --grid: each parameter may be given once")
@@ -142,10 +136,10 @@ def _sweep(args, parser: argparse.ArgumentParser) -> int:
     try:
         spec = SweepSpec(
             grid=grid,
-            methods=tuple(args.methods),
+            strategies=tuple(args.strategies),
             seeds=args.seeds,
             first_seed=args.first_seed,
-            steps=args.steps,
+            experiments=args.experiments,
             base=base,
         )
     except ValueError as exc:
@@ -155,10 +149,10 @@ def _sweep(args, parser: argparse.ArgumentParser) -> int:
         spec, args.out, address=args.address, num_cpus=args.num_cpus, figures=not args.no_figures
     )
     wall = time.perf_counter() - start
-    for name, per_method in summary["by_parameter"].items():
-        for method, values in per_method.items():
+    for name, per_strategy in summary["by_parameter"].items():
+        for strategy, values in per_strategy.items():
             text = "  ".join(f"{v}: {s['mean']:.4f}+-{s['std']:.4f}" for v, s in values.items())
-            print(f"{method:>8} final KL by {name}: {text}")
+            print(f"{strategy:>8} final KL by {name}: {text}")
     print(
         f"{summary['ran']} runs now, {summary['reused']} from {args.out}/sweep.csv, "
         f"in {wall:.1f} s; results in {args.out}/"
@@ -171,11 +165,18 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command == "sweep":
         return _sweep(args, parser)
+    if args.command == "claims":
+        return cmd_curiosity_claims(args)
     configs = [
         RunConfig(
-            method=m, seed=s, steps=args.steps, alpha=args.alpha, theta=args.theta, gamma=args.gamma
+            strategy=m,
+            seed=s,
+            experiments=args.experiments,
+            alpha=args.alpha,
+            theta=args.theta,
+            gamma=args.gamma,
         )
-        for m in args.methods
+        for m in args.strategies
         for s in range(args.first_seed, args.first_seed + args.seeds)
     ]
     start = time.perf_counter()
@@ -190,23 +191,25 @@ def main(argv: list[str] | None = None) -> int:
 
         paper_figures(results, args.out, jobs=args.jobs)
     wall = time.perf_counter() - start
-    for method, m in summary["methods"].items():
+    for strategy, m in summary["strategies"].items():
         kl = " ".join(f"{h}:{v:.3f}" for h, v in m["final_kl"].items())
-        print(f"{method:>6}: final KL overall {m['final_kl_overall']:.4f}  per height {kl}")
-    print(f"{len(configs)} runs x {args.steps} steps in {wall:.1f} s; results in {args.out}/")
+        print(f"{strategy:>6}: final KL overall {m['final_kl_overall']:.4f}  per height {kl}")
+    print(f"{len(configs)} runs x {args.experiments} experiments in {wall:.1f} s; "
+          f"results in {args.out}/")
     return 0
 
 
 def _explore_with_progress(config: RunConfig) -> list:
-    """One run with a progress bar over its steps."""
+    """One run with a progress bar over its experiments."""
     with tqdm(
-        total=config.steps,
-        desc=f"{config.method} seed {config.seed}",
-        unit="step",
+        total=config.experiments,
+        desc=f"{config.strategy} seed {config.seed}",
+        unit="experiment",
         file=sys.stderr,
         mininterval=0.2,
     ) as bar:
-        return [run(config, progress=bar.update, progress_every=max(config.steps // 200, 1))]
+        return [run(config, progress=bar.update,
+                    progress_every=max(config.experiments // 200, 1))]
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""The paper's simulated experiments: every method on every seed in the abstract world."""
+"""The paper's simulated experiments: every strategy on every seed in the abstract world."""
 
 from __future__ import annotations
 
@@ -13,45 +13,45 @@ from pathlib import Path
 
 import numpy as np
 from katana_curiosity.core.abstract_world import AbstractBlocksWorld
-from katana_curiosity.core.explorer import (
-    PLAN,
-    QUERY,
-    STRATEGIES,
-    Explorer,
-    Strategy,
-    make_strategy,
+from katana_curiosity.core.explorer import PLAN, QUERY, Explorer, Strategy
+from katana_curiosity.core.predictors import (
+    ALPHA,
+    GAMMA,
+    THETA_ABSTRACT,
+    PredictorBank,
+    QueryRule,
 )
-from katana_curiosity.core.predictors import PredictorBank, QueryRule
+from katana_curiosity.core.strategies import STRATEGIES, make_strategy
 
 from .metrics import cumulative_by_state, model_kl
 
-DEFAULT_METHODS = ("q1", "q10", "conf", "random")
-FAST_METHOD_NAMES = ("q1", "q10", "conf", "random")  # fastpath.FAST_METHODS, without numba
+DEFAULT_STRATEGIES = ("q1", "q10", "conf", "random")
+FAST_STRATEGY_NAMES = ("q1", "q10", "conf", "random")  # fastpath.FAST_STRATEGIES, without numba
 DEFAULT_SNAPSHOTS = (1000, 2000, 3000, 4000)
 
 
 @dataclass(frozen=True)
 class RunConfig:
-    """One run: a method on a seed. Defaults are the paper's simulation (section 3)."""
+    """One run: a strategy on a seed. Defaults are the paper's simulation (section 3)."""
 
-    method: str = "q1"
+    strategy: str = "q1"
     seed: int = 0
-    steps: int = 10_000
+    experiments: int = 10_000
     n_blocks: int = 8
     n_features: int = 21
-    alpha: float = 1.0
-    theta: float = 0.01
-    gamma: float = 0.95
-    record_every: int = 50
-    snapshots: tuple[int, ...] = DEFAULT_SNAPSHOTS
+    alpha: float = ALPHA
+    theta: float = THETA_ABSTRACT
+    gamma: float = GAMMA
+    record_every: int = 50  # experiments between two KL records
+    snapshots: tuple[int, ...] = DEFAULT_SNAPSHOTS  # after these experiments, the whole model
 
     def __post_init__(self) -> None:
-        if self.method not in STRATEGIES:
+        if self.strategy not in STRATEGIES:
             raise ValueError(
-                f"unknown method {self.method!r}: choose from {', '.join(sorted(STRATEGIES))}"
+                f"unknown strategy {self.strategy!r}: choose from {', '.join(sorted(STRATEGIES))}"
             )
-        if self.steps < 1:
-            raise ValueError(f"steps must be >= 1, got {self.steps}")
+        if self.experiments < 1:
+            raise ValueError(f"experiments must be >= 1, got {self.experiments}")
         if self.record_every < 1:
             raise ValueError(f"record_every must be >= 1, got {self.record_every}")
         if not 0.0 <= self.gamma < 1.0:
@@ -64,15 +64,15 @@ class RunResult:
     """Everything the figures need from one run (plain arrays: saved as CSV and npz)."""
 
     config: RunConfig
-    states: np.ndarray  # (steps,) state of each experiment
-    actions: np.ndarray  # (steps,) action index of each experiment
-    modes: np.ndarray  # (steps,) QUERY, PLAN or RANDOM
-    labels: np.ndarray  # (steps,) +1 / -1
-    record_steps: np.ndarray  # (r,) steps at which the KL was recorded
+    states: np.ndarray  # (experiments,) state of each experiment
+    actions: np.ndarray  # (experiments,) action index of each experiment
+    modes: np.ndarray  # (experiments,) QUERY, PLAN or RANDOM
+    labels: np.ndarray  # (experiments,) +1 / -1
+    record_at: np.ndarray  # (r,) experiments done when the KL was recorded
     kl: np.ndarray  # (r, heights) KL(true || learned) per learned height
     heights: np.ndarray  # the learned heights (1..7)
     true_margin: np.ndarray  # (n_states, n_actions)
-    snapshot_steps: np.ndarray  # (k,)
+    snapshot_at: np.ndarray  # (k,) experiments done at each snapshot
     snapshot_margin: np.ndarray  # (k, n_states, n_actions)
     snapshot_chi: np.ndarray
     snapshot_unknown: np.ndarray
@@ -85,7 +85,7 @@ class RunResult:
         return self.true_margin.shape[0]
 
     def cumulative(self, mode: int, at: np.ndarray | None = None) -> np.ndarray:
-        at = self.record_steps if at is None else at
+        at = self.record_at if at is None else at
         return cumulative_by_state(self.states, self.modes == mode, self.n_states, at)
 
 
@@ -102,8 +102,86 @@ def build_run(config: RunConfig) -> tuple[AbstractBlocksWorld, PredictorBank, St
         QueryRule(config.alpha, config.theta),
         n_states=world.top + 1,
     )
-    strategy = make_strategy(config.method, bank, world.top, config.gamma, seed=int(agent_seed))
+    strategy = make_strategy(config.strategy, bank, world.top, config.gamma, seed=int(agent_seed))
     return world, bank, strategy
+
+
+class _Records:
+    """What a run keeps of its model while it runs: the learned margins of the learned heights
+    at every recorded experiment count (their KL is computed at the end) and whole-model
+    snapshots."""
+
+    def __init__(self, config: RunConfig, bank: PredictorBank, heights: np.ndarray) -> None:
+        n = config.experiments
+        self.bank, self.heights = bank, heights
+        self.record_at = np.unique(
+            np.r_[0, np.arange(config.record_every, n + 1, config.record_every), n]
+        )
+        self.margins = np.empty((len(self.record_at), len(heights), bank.margin.shape[1]))
+        self.snapshot_at = np.array(sorted({s for s in config.snapshots if 0 < s <= n} | {n}))
+        self.snap_margin = np.empty((len(self.snapshot_at), *bank.margin.shape))
+        self.snap_chi = np.empty_like(self.snap_margin)
+        self.snap_unknown = np.empty(self.snap_margin.shape, dtype=bool)
+        self._record_index = {int(s): i for i, s in enumerate(self.record_at)}
+        self._snap_index = {int(s): i for i, s in enumerate(self.snapshot_at)}
+        self.margins[0] = bank.margin[heights]
+
+    def stops(self) -> set[int]:
+        """The experiment counts at which something is kept."""
+        return set(self._record_index) | set(self._snap_index)
+
+    def observe(self, done: int) -> None:
+        bank = self.bank
+        if done in self._record_index:
+            self.margins[self._record_index[done]] = bank.margin[self.heights]
+        if done in self._snap_index:
+            i = self._snap_index[done]
+            self.snap_margin[i], self.snap_chi[i] = bank.margin, bank.chi
+            self.snap_unknown[i] = bank.unknown
+
+
+def _fast_run(config: RunConfig, world, bank, strategy, engine: str):
+    """The compiled loop of core.fastpath for this run, or None (the reference Explorer runs it)."""
+    if engine == "reference":
+        return None
+    from katana_curiosity.core import fastpath  # numba: imported only when a run uses it
+
+    if config.strategy in fastpath.FAST_STRATEGIES and fastpath.supports(world, bank):
+        return fastpath.FastRun(
+            config.strategy, world, bank, strategy.rng, config.gamma, config.experiments
+        )
+    if engine == "fast":
+        raise ValueError(f"no fast path for strategy {config.strategy!r}")
+    return None
+
+
+def _run_fast(fast, stops: set[int], observe: Callable[[int], None]):
+    """Compiled chunks between the experiment counts where something is kept or reported."""
+    for done in sorted(s for s in stops if s > 0):
+        fast.advance(done - fast.done)
+        observe(done)
+    fast.sync()
+    return (fast.states, fast.actions, fast.modes, fast.labels), fast.plan_calls
+
+
+def _run_reference(explorer: Explorer, n: int, observe: Callable[[int], None]):
+    """n experiments of the NumPy Explorer, observing after each."""
+    states = np.empty(n, dtype=np.int16)
+    actions = np.empty(n, dtype=np.int16)
+    modes = np.empty(n, dtype=np.int8)
+    labels = np.empty(n, dtype=np.int8)
+    step = explorer.step
+    for t in range(n):
+        result = step()
+        states[t], actions[t], modes[t], labels[t] = (
+            result.state,
+            result.action,
+            result.mode,
+            result.label,
+        )
+        observe(t + 1)
+    plan_calls = getattr(getattr(explorer.strategy, "planner", None), "calls", 0)
+    return (states, actions, modes, labels), plan_calls
 
 
 def run(
@@ -112,99 +190,50 @@ def run(
     progress_every: int = 100,
     engine: str = "auto",
 ) -> RunResult:
-    """One run of `config.method` in the abstract world; deterministic for `config.seed`.
+    """One run of `config.strategy` in the abstract world; deterministic for `config.seed`.
 
-    progress(k) is called after every `progress_every` steps with k, the steps just done.
-    engine: "reference" steps the NumPy Explorer; "fast" the compiled loop of core.fastpath
-    (same trajectory; q1, q10, conf and random only); "auto" the fast one where it exists.
+    progress(k) is called after every `progress_every` experiments with k, the experiments
+    just done. engine: "reference" runs the NumPy Explorer; "fast" the compiled loop of
+    core.fastpath (same trajectory; q1, q10, conf and random only); "auto" the fast one where
+    it exists.
     """
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
     if progress_every < 1:
         raise ValueError(f"progress_every must be >= 1, got {progress_every}")
     world, bank, strategy = build_run(config)
-    fast = None
-    if engine != "reference":
-        from katana_curiosity.core import fastpath  # numba: imported only when a run uses it
-
-        if config.method in fastpath.FAST_METHODS and fastpath.supports(world, bank):
-            fast = fastpath.FastRun(
-                config.method, world, bank, strategy.rng, config.gamma, config.steps
-            )
-        elif engine == "fast":
-            raise ValueError(f"no fast path for method {config.method!r}")
-    explorer = Explorer(world, bank, strategy)
+    fast = _fast_run(config, world, bank, strategy, engine)
     heights = np.array(world.learned_heights)
     true_margin = np.vstack([world.true_margin, np.zeros((1, world.n_actions))])
-
-    n = config.steps
-    states = np.empty(n, dtype=np.int16)
-    actions = np.empty(n, dtype=np.int16)
-    modes = np.empty(n, dtype=np.int8)
-    labels = np.empty(n, dtype=np.int8)
-    record_steps = np.unique(
-        np.r_[0, np.arange(config.record_every, n + 1, config.record_every), n]
-    )
-    # Learned margins at every recorded step; the KL of all of them is computed at the end.
-    recorded = np.empty((len(record_steps), len(heights), world.n_actions))
-    snap_steps = np.array(sorted({s for s in config.snapshots if 0 < s <= n} | {n}))
-    snap_margin = np.empty((len(snap_steps), *bank.margin.shape))
-    snap_chi = np.empty_like(snap_margin)
-    snap_unknown = np.empty(snap_margin.shape, dtype=bool)
-
-    record_at = {int(s): i for i, s in enumerate(record_steps)}
-    snap_at = {int(s): i for i, s in enumerate(snap_steps)}
-    recorded[0] = bank.margin[heights]
+    n = config.experiments
+    records = _Records(config, bank, heights)
 
     def observe(done: int) -> None:
-        if done in record_at:
-            recorded[record_at[done]] = bank.margin[heights]
-        if done in snap_at:
-            i = snap_at[done]
-            snap_margin[i], snap_chi[i], snap_unknown[i] = bank.margin, bank.chi, bank.unknown
+        records.observe(done)
         if progress is not None and (done % progress_every == 0 or done == n):
             progress(done % progress_every or progress_every)
 
     start = time.perf_counter()
     if fast is not None:
-        # Compiled chunks between the steps where something is recorded or reported.
-        stops = set(record_at) | set(snap_at) | {n}
+        stops = records.stops() | {n}
         if progress is not None:
             stops |= set(range(progress_every, n + 1, progress_every))
-        for done in sorted(s for s in stops if s > 0):
-            fast.advance(done - fast.done)
-            observe(done)
-        fast.sync()
-        states, actions, modes, labels = fast.states, fast.actions, fast.modes, fast.labels
-        plan_calls = fast.plan_calls
+        trajectory, plan_calls = _run_fast(fast, stops, observe)
     else:
-        step = explorer.step
-        for t in range(n):
-            result = step()
-            states[t], actions[t], modes[t], labels[t] = (
-                result.state,
-                result.action,
-                result.mode,
-                result.label,
-            )
-            observe(t + 1)
-        plan_calls = getattr(getattr(strategy, "planner", None), "calls", 0)
-    kl = model_kl(true_margin[heights], recorded)  # (records, heights)
+        trajectory, plan_calls = _run_reference(Explorer(world, bank, strategy), n, observe)
+    kl = model_kl(true_margin[heights], records.margins)  # (records, heights)
     wall = time.perf_counter() - start
     return RunResult(
         config,
-        states,
-        actions,
-        modes,
-        labels,
-        record_steps,
+        *trajectory,
+        records.record_at,
         kl,
         heights,
         true_margin,
-        snap_steps,
-        snap_margin,
-        snap_chi,
-        snap_unknown,
+        records.snapshot_at,
+        records.snap_margin,
+        records.snap_chi,
+        records.snap_unknown,
         wall,
         plan_calls,
     )
@@ -230,8 +259,8 @@ def run_many(
             if progress:
                 progress(results[i])
     else:
-        if any(c.method in FAST_METHOD_NAMES for c in configs):
-            from katana_curiosity.core.fastpath import warm_up
+        if any(c.strategy in FAST_STRATEGY_NAMES for c in configs):
+            from katana_curiosity.core.fastpath import warm_up  # numba: only for fast runs
 
             warm_up()  # load (or compile) once here: forked workers inherit the machine code
         with ProcessPoolExecutor(max_workers=jobs) as pool:
@@ -247,13 +276,13 @@ def run_many(
 
 
 def write_run_csv(result: RunResult, path: Path) -> None:
-    """One row per recorded step: KL per height and cumulative direct/planned experience."""
+    """One row per KL record: KL per height and cumulative direct/planned experience."""
     direct = result.cumulative(QUERY)
     planned = result.cumulative(PLAN)
     heights = result.heights.tolist()
     states = range(result.n_states - 1)
     header = (
-        ["step"]
+        ["experiment"]
         + [f"kl_{h}" for h in heights]
         + ["kl_overall"]
         + [f"direct_{s}" for s in states]
@@ -262,9 +291,9 @@ def write_run_csv(result: RunResult, path: Path) -> None:
     with open(path, "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(header)
-        for i, step in enumerate(result.record_steps):
+        for i, done in enumerate(result.record_at):
             writer.writerow(
-                [int(step)]
+                [int(done)]
                 + [f"{v:.6g}" for v in result.kl[i]]
                 + [f"{result.kl[i].mean():.6g}"]
                 + [int(direct[i, s]) for s in states]
@@ -273,16 +302,16 @@ def write_run_csv(result: RunResult, path: Path) -> None:
 
 
 def summarise(results: Sequence[RunResult]) -> dict:
-    """summary.json: final KL per method and height (mean over seeds), and how they explored."""
+    """summary.json: final KL per strategy and height (mean over seeds), and how they explored."""
     if not results:
         raise ValueError("no results to summarise")
-    methods: dict[str, dict] = {}
-    for method in dict.fromkeys(r.config.method for r in results):
-        runs = [r for r in results if r.config.method == method]
+    strategies: dict[str, dict] = {}
+    for strategy in dict.fromkeys(r.config.strategy for r in results):
+        runs = [r for r in results if r.config.strategy == strategy]
         final = np.array([r.kl[-1] for r in runs])  # (seeds, heights)
         heights = runs[0].heights.tolist()
-        steps = sum(r.config.steps for r in runs)
-        methods[method] = {
+        experiments = sum(r.config.experiments for r in runs)
+        strategies[strategy] = {
             "final_kl": {str(h): float(final[:, i].mean()) for i, h in enumerate(heights)},
             "final_kl_std": {str(h): float(final[:, i].std()) for i, h in enumerate(heights)},
             "final_kl_overall": float(final.mean()),
@@ -290,11 +319,11 @@ def summarise(results: Sequence[RunResult]) -> dict:
             "planned_experience": _mean_counts(runs, PLAN),
             "highest_state_tried": float(np.mean([r.states.max() for r in runs])),
             "plan_calls": float(np.mean([r.plan_calls for r in runs])),
-            "steps_per_s": steps / max(sum(r.wall_s for r in runs), 1e-9),
+            "experiments_per_s": experiments / max(sum(r.wall_s for r in runs), 1e-9),
         }
     first = results[0].config
     return {
-        "steps": first.steps,
+        "experiments": first.experiments,
         "seeds": sorted({r.config.seed for r in results}),
         "parameters": {
             "n_blocks": first.n_blocks,
@@ -303,7 +332,7 @@ def summarise(results: Sequence[RunResult]) -> dict:
             "theta": first.theta,
             "gamma": first.gamma,
         },
-        "methods": methods,
+        "strategies": strategies,
     }
 
 
@@ -318,7 +347,7 @@ def save_results(results: Sequence[RunResult], out: Path) -> dict:
     runs_dir = out / "runs"
     runs_dir.mkdir(exist_ok=True)
     for r in results:
-        write_run_csv(r, runs_dir / f"{r.config.method}_seed{r.config.seed}.csv")
+        write_run_csv(r, runs_dir / f"{r.config.strategy}_seed{r.config.seed}.csv")
     summary = summarise(results)
     with open(out / "summary.json", "w") as f:
         json.dump(summary, f, indent=2)

@@ -1,7 +1,9 @@
-"""Figures 4-9 of the paper from experiment results (matplotlib, headless)."""
+"""Figures 4-9 of the paper from experiment results, and the sensitivity of a sweep
+(matplotlib, headless)."""
 
 from __future__ import annotations
 
+import itertools
 import multiprocessing
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -16,8 +18,9 @@ from katana_curiosity.core.explorer import PLAN, QUERY  # noqa: E402
 
 from .experiments import RunResult  # noqa: E402
 from .metrics import experience_histogram  # noqa: E402
+from .sweep import SweepSpec, matches  # noqa: E402
 
-METHOD_LABELS = {
+STRATEGY_LABELS = {
     "q1": "Q1",
     "q10": "Q10",
     "conf": "Conf",
@@ -47,14 +50,14 @@ def _colors(n: int) -> list:
     return [plt.get_cmap("viridis")(i / max(n - 1, 1)) for i in range(n)]
 
 
-def _runs(results: Sequence[RunResult], method: str) -> list[RunResult]:
-    return [r for r in results if r.config.method == method]
+def _runs(results: Sequence[RunResult], strategy: str) -> list[RunResult]:
+    return [r for r in results if r.config.strategy == strategy]
 
 
-def figure4(results: Sequence[RunResult], path: Path, method: str = "q1") -> None:
+def figure4(results: Sequence[RunResult], path: Path, strategy: str = "q1") -> None:
     """Cumulative direct and planned experience per height (mean over seeds), Figure 4."""
-    runs = _runs(results, method)
-    steps = runs[0].record_steps
+    runs = _runs(results, strategy)
+    at = runs[0].record_at
     direct = np.mean([r.cumulative(QUERY) for r in runs], axis=0)
     planned = np.mean([r.cumulative(PLAN) for r in runs], axis=0)
     n_states = runs[0].n_states - 1
@@ -62,19 +65,19 @@ def figure4(results: Sequence[RunResult], path: Path, method: str = "q1") -> Non
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), sharey=True)
     for s in range(n_states):
         if direct[-1, s] > 0:
-            axes[0].plot(steps, direct[:, s], color=colors[s], label=f"height {s}")
+            axes[0].plot(at, direct[:, s], color=colors[s], label=f"height {s}")
         if planned[-1, s] > 0:
-            axes[1].plot(steps, planned[:, s], color=colors[s], label=f"height {s}")
+            axes[1].plot(at, planned[:, s], color=colors[s], label=f"height {s}")
     first = runs[0]
     for s in range(1, n_states):
         hits = np.flatnonzero((first.states == s) & (first.modes == QUERY))
         if len(hits):
             for ax in axes:
                 ax.axvline(hits[-1] + 1, color=colors[s], lw=0.8, ls=":")
-    axes[0].set_title(f"Direct exploration ({METHOD_LABELS.get(method, method)})")
+    axes[0].set_title(f"Direct exploration ({STRATEGY_LABELS.get(strategy, strategy)})")
     axes[1].set_title("Planned exploration")
     for ax in axes:
-        ax.set_xlabel("timestep")
+        ax.set_xlabel("experiment")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel(f"cumulative experience (mean of {len(runs)} runs)")
     axes[1].legend(fontsize=8, loc="upper left")
@@ -88,21 +91,21 @@ def figure4(results: Sequence[RunResult], path: Path, method: str = "q1") -> Non
     plt.close(fig)
 
 
-def figure5(results: Sequence[RunResult], path: Path, method: str = "q1") -> None:
-    """KL divergence between learned and true models per height over time, Figure 5."""
-    runs = _runs(results, method)
-    steps = runs[0].record_steps
+def figure5(results: Sequence[RunResult], path: Path, strategy: str = "q1") -> None:
+    """KL divergence between learned and true models per height over experiments, Figure 5."""
+    runs = _runs(results, strategy)
+    at = runs[0].record_at
     kl = np.mean([r.kl for r in runs], axis=0)
     heights = runs[0].heights
     colors = _colors(len(heights) + 1)
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for i, h in enumerate(heights):
-        ax.plot(steps, kl[:, i], color=colors[h], label=f"height {h}")
+        ax.plot(at, kl[:, i], color=colors[h], label=f"height {h}")
     ax.set_yscale("log")
-    ax.set_xlabel("timestep")
+    ax.set_xlabel("experiment")
     ax.set_ylabel("KL(true || learned), mean over features")
     ax.set_title(
-        f"Figure 5: learning progress ({METHOD_LABELS.get(method, method)}, "
+        f"Figure 5: learning progress ({STRATEGY_LABELS.get(strategy, strategy)}, "
         f"mean of {len(runs)} runs)"
     )
     ax.grid(alpha=0.3, which="both")
@@ -114,7 +117,7 @@ def figure5(results: Sequence[RunResult], path: Path, method: str = "q1") -> Non
 
 def _focus_row(ax_hist, ax_model, result: RunResult, state: int, snap: int) -> None:
     n_actions = result.true_margin.shape[1]
-    upto = int(result.snapshot_steps[snap])
+    upto = int(result.snapshot_at[snap])
     counts = experience_histogram(
         result.states.astype(int), result.actions.astype(int), state, n_actions, upto
     )
@@ -144,7 +147,7 @@ def focus_figure(
     result: RunResult, state: int, path: Path, snaps: Sequence[int] | None = None, title: str = ""
 ) -> None:
     """Exploration focus at one height (Figures 6 and 7): experience and model over time."""
-    snaps = list(range(len(result.snapshot_steps))) if snaps is None else list(snaps)
+    snaps = list(range(len(result.snapshot_at))) if snaps is None else list(snaps)
     fig, axes = plt.subplots(len(snaps), 2, figsize=(10, 1.9 * len(snaps) + 0.8), squeeze=False)
     for row, snap in enumerate(snaps):
         _focus_row(axes[row, 0], axes[row, 1], result, state, snap)
@@ -161,7 +164,7 @@ def focus_figure(
 
 def figure8(result: RunResult, path: Path, heights: Sequence[int] = (1, 2, 3, 4, 5, 6)) -> None:
     """Exploration focus of the first six heights at the end of the run (Figure 8)."""
-    last = len(result.snapshot_steps) - 1
+    last = len(result.snapshot_at) - 1
     fig, axes = plt.subplots(len(heights), 2, figsize=(10, 1.9 * len(heights) + 0.8), squeeze=False)
     for row, h in enumerate(heights):
         _focus_row(axes[row, 0], axes[row, 1], result, h, last)
@@ -170,7 +173,7 @@ def figure8(result: RunResult, path: Path, heights: Sequence[int] = (1, 2, 3, 4,
     axes[-1, 0].set_xlabel("feature index (ascending stability)")
     axes[-1, 1].set_xlabel("feature index (ascending stability)")
     fig.suptitle(
-        f"Figure 8: heights 1-6 at t={int(result.snapshot_steps[last])} "
+        f"Figure 8: heights 1-6 at t={int(result.snapshot_at[last])} "
         f"(run seed={result.config.seed}); shaded: still unknown",
         fontsize=10,
     )
@@ -180,20 +183,20 @@ def figure8(result: RunResult, path: Path, heights: Sequence[int] = (1, 2, 3, 4,
 
 
 def figure9(results: Sequence[RunResult], path: Path) -> None:
-    """KL per height and overall for every method (Figure 9)."""
-    methods = list(dict.fromkeys(r.config.method for r in results))
+    """KL per height and overall for every strategy (Figure 9)."""
+    strategies = list(dict.fromkeys(r.config.strategy for r in results))
     heights = results[0].heights
-    steps = results[0].record_steps
+    at = results[0].record_at
     n = len(heights) + 1
     cols = 4
     rows = int(np.ceil(n / cols))
     fig, axes = plt.subplots(rows, cols, figsize=(14, 3.2 * rows), squeeze=False)
-    for m in methods:
+    for m in strategies:
         runs = _runs(results, m)
         kl = np.mean([r.kl for r in runs], axis=0)
         for i in range(len(heights)):
-            axes.flat[i].plot(steps, kl[:, i], label=METHOD_LABELS.get(m, m))
-        axes.flat[len(heights)].plot(steps, kl.mean(axis=1), label=METHOD_LABELS.get(m, m))
+            axes.flat[i].plot(at, kl[:, i], label=STRATEGY_LABELS.get(m, m))
+        axes.flat[len(heights)].plot(at, kl.mean(axis=1), label=STRATEGY_LABELS.get(m, m))
     for i, h in enumerate(heights):
         axes.flat[i].set_title(f"height {h}", fontsize=9)
     axes.flat[len(heights)].set_title("overall (mean of heights)", fontsize=9)
@@ -204,8 +207,10 @@ def figure9(results: Sequence[RunResult], path: Path) -> None:
     for ax in axes.flat[n:]:
         ax.axis("off")
     axes.flat[0].legend(fontsize=8)
-    seeds = len(_runs(results, methods[0]))
-    fig.suptitle(f"Figure 9: KL(true || learned) over time, mean of {seeds} runs", fontsize=10)
+    seeds = len(_runs(results, strategies[0]))
+    fig.suptitle(
+        f"Figure 9: KL(true || learned) over experiments, mean of {seeds} runs", fontsize=10
+    )
     _fixed_layout(fig, left=0.04, right=0.99, hspace=0.3, wspace=0.18)
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -213,10 +218,10 @@ def figure9(results: Sequence[RunResult], path: Path) -> None:
 
 def _figure_tasks(results: Sequence[RunResult], out: Path) -> list[tuple[float, Callable]]:
     """(relative cost, draw) for fig4..fig9; figures 4-8 use Q1 when it was run."""
-    methods = list(dict.fromkeys(r.config.method for r in results))
-    main = "q1" if "q1" in methods else methods[0]
+    strategies = list(dict.fromkeys(r.config.strategy for r in results))
+    main = "q1" if "q1" in strategies else strategies[0]
     first = _runs(results, main)[0]
-    early = [i for i, s in enumerate(first.snapshot_steps) if s < first.config.steps] or [0]
+    early = [i for i, s in enumerate(first.snapshot_at) if s < first.config.experiments] or [0]
 
     def focus(height: int, number: int) -> Callable[[], None]:
         return lambda: focus_figure(
@@ -272,3 +277,50 @@ def paper_figures(results: Sequence[RunResult], out: Path, jobs: int = 1) -> lis
         finally:
             _PENDING.clear()
     return [out / f"fig{i}.png" for i in range(4, 10)]
+
+
+def sensitivity_figure(spec: SweepSpec, rows: Sequence[dict], path: Path) -> None:
+    """Final overall KL against each swept parameter, per strategy; one line per combination of
+    the other parameters, the band the spread (one standard deviation) over seeds."""
+    names = list(spec.grid)
+    fig, axes = plt.subplots(1, len(names), figsize=(6 * len(names), 4.5), squeeze=False)
+    colors = plt.get_cmap("tab10")
+    styles = ["-", "--", ":", "-."]
+    for ax, name in zip(axes.flat, names, strict=True):
+        others = {k: v for k, v in spec.grid.items() if k != name}
+        combos = [
+            dict(zip(others, vs, strict=True)) for vs in itertools.product(*others.values())
+        ] or [{}]
+        xs = np.array(spec.grid[name], dtype=float)
+        for mi, m in enumerate(spec.strategies):
+            for ci, combo in enumerate(combos):
+                stats = []
+                for x in spec.grid[name]:
+                    kl = [
+                        float(r["final_kl_overall"])
+                        for r in rows
+                        if matches(r, {**combo, name: x}, m)
+                    ]
+                    stats.append((np.mean(kl), np.std(kl)) if kl else (np.nan, np.nan))
+                mean, std = np.array(stats).T
+                label = STRATEGY_LABELS.get(m, m)
+                if combo:
+                    label += " (" + ", ".join(f"{k}={v:g}" for k, v in combo.items()) + ")"
+                color = colors(mi % 10)
+                ax.plot(xs, mean, styles[ci % 4], marker="o", color=color, label=label, lw=1.2)
+                ax.fill_between(xs, mean - std, mean + std, color=color, alpha=0.12)
+        if np.all(xs > 0) and xs.max() / xs.min() >= 10:
+            ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel(name)
+        ax.set_ylabel("final KL(true || learned), mean of heights")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    fig.suptitle(
+        f"Sensitivity after {spec.experiments} experiments: mean and spread over "
+        f"{spec.seeds} seeds",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

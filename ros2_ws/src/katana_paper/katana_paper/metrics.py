@@ -33,7 +33,8 @@ def model_kl(true_margin: np.ndarray, learned_margin: np.ndarray) -> np.ndarray:
 def cumulative_by_state(
     states: np.ndarray, selected: np.ndarray, n_states: int, at: np.ndarray
 ) -> np.ndarray:
-    """Count, at each step in `at`, how many selected steps so far had each state.
+    """Count, at each experiment count in `at`, how many selected experiments so far had
+    each state.
 
     Returns (len(at), n_states): the curves of Figure 4 (direct or planned experience).
     """
@@ -45,7 +46,7 @@ def cumulative_by_state(
 def experience_histogram(
     states: np.ndarray, actions: np.ndarray, state: int, n_actions: int, upto: int
 ) -> np.ndarray:
-    """How often each action was tried at `state` during the first `upto` steps (Figures 6-8)."""
+    """How often each action was tried at `state` in the first `upto` experiments (Figures 6-8)."""
     mask = states[:upto] == state
     return np.bincount(actions[:upto][mask], minlength=n_actions)
 
@@ -53,6 +54,6 @@ def experience_histogram(
 def direct_exploration_end(
     states: np.ndarray, modes: np.ndarray, state: int, query: int = 0
 ) -> int:
-    """Step after the last direct query at `state` (the vertical lines of Figure 4); -1 if none."""
+    """The experiment after the last direct query at `state` (Figure 4's dotted lines); -1: none."""
     hits = np.flatnonzero((states == state) & (modes == query))
     return int(hits[-1]) + 1 if len(hits) else -1

@@ -4,8 +4,9 @@ ROS-free. `analyse_run` replays one run's experience log through a fresh learner
 every experiment, the KL divergence per height from the measured truth (core.robot_truth), the
 direct and planned experience per height, and which experiments were wasted: made on a pair the
 query condition already called known, and leading nowhere (the block fell, or the stack it grew
-offers no pair still unknown). `summarise` folds the runs of each method into summary.json;
-the figure functions draw the paper's Figures 4/5, 13 and 10-12 (contact sheet) for the robot.
+offers no pair still unknown). `summarise` folds the runs of each strategy into summary.json;
+the figure functions draw the paper's Figures 4/5 and 13 for the robot (katana_paper.
+contact_sheet draws Figures 10-12).
 """
 
 from __future__ import annotations
@@ -13,19 +14,25 @@ from __future__ import annotations
 import csv
 import statistics
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
-import cv2  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from katana_curiosity.core.predictors import PredictorBank, QueryRule, one_hot_with_bias  # noqa: E402
+from katana_bringup import run_report  # noqa: E402
+from katana_curiosity.core.predictors import (  # noqa: E402
+    ALPHA,
+    THETA_ROBOT,
+    PredictorBank,
+    QueryRule,
+    one_hot_with_bias,
+)
 
-from .robot_truth import TruthTable, kl_to_truth  # noqa: E402
+from .robot_truth import TruthTable, kl_to_truth, wilson_interval  # noqa: E402
 
 #: the paper's claim of a usable model "within about 30 interactions" (section 3.3)
 USABLE_AFTER = 30
@@ -35,7 +42,7 @@ USABLE_AFTER = 30
 class RunAnalysis:
     """One run replayed: per-experiment KL per height, experience counts and waste."""
 
-    method: str
+    strategy: str
     seed: int
     kl: np.ndarray  # (experiments, heights) KL after each experiment; NaN where unmeasured
     states: np.ndarray  # height placed upon, per experiment
@@ -68,12 +75,12 @@ class RunAnalysis:
 def analyse_run(
     records: Sequence,
     truth: TruthTable,
-    method: str,
+    strategy: str,
     seed: int,
     n_actions: int = 6,
     max_height: int = 3,
-    alpha: float = 1.0,
-    theta: float = 0.1,
+    alpha: float = ALPHA,
+    theta: float = THETA_ROBOT,
 ) -> RunAnalysis:
     """Replay `records` (ExperimentRecord-like: state, action, label, mode, wall_time) in order
     through a fresh learner with the run's query rule, measuring after every update."""
@@ -101,7 +108,7 @@ def analyse_run(
     times = [float(r.wall_time) for r in records if getattr(r, "wall_time", 0.0)]
     gaps = [b - a for a, b in zip(times, times[1:], strict=False) if b >= a]
     return RunAnalysis(
-        method=method, seed=seed, kl=kl,
+        strategy=strategy, seed=seed, kl=kl,
         states=np.array([int(r.state) for r in records], dtype=int),
         actions=np.array([int(r.action) for r in records], dtype=int),
         labels=np.array([int(r.label) for r in records], dtype=int),
@@ -139,12 +146,13 @@ def summarise(
     n_actions: int = 6,
     max_height: int = 3,
 ) -> dict:
-    """summary.json of issue 9: per method the final KL per height and overall (means over the
-    seeds), the actions tried per height (summed over the seeds), the highest stack (over the
-    seeds), seconds per experiment (median of the runs' medians), and the wasted share."""
-    methods: dict[str, dict] = {}
-    for method in dict.fromkeys(a.method for a in analyses):
-        runs = [a for a in analyses if a.method == method]
+    """summary.json of the robot experiment: per strategy the final KL per height and overall
+    (means over the seeds), the actions tried per height (summed over the seeds), the highest
+    stack (over the seeds), seconds per experiment (median of the runs' medians), and the
+    wasted share."""
+    strategies: dict[str, dict] = {}
+    for strategy in dict.fromkeys(a.strategy for a in analyses):
+        runs = [a for a in analyses if a.strategy == strategy]
         finals = np.array([r.kl[-1] if len(r.kl) else np.full(max_height + 1, np.nan)
                            for r in runs])
         heights = finals.shape[1]
@@ -157,7 +165,7 @@ def summarise(
         spe = [r.s_per_experiment for r in runs if r.s_per_experiment is not None]
         done = sum(len(r.states) for r in runs)
         wasted = sum(int(r.wasted.sum()) for r in runs)
-        methods[method] = {
+        strategies[strategy] = {
             "final_kl": final_kl,
             "final_kl_overall": _round(statistics.mean(per_run_overall))
             if per_run_overall else None,
@@ -174,7 +182,7 @@ def summarise(
             "final_kl_overall_per_seed": [_round(v) for v in per_run_overall],
         }
     return {"experiments": experiments, "seeds": list(seeds), "truth": truth_path,
-            "methods": methods}
+            "strategies": strategies}
 
 
 # -- figures -------------------------------------------------------------------------------
@@ -190,19 +198,19 @@ def _mean_curve(runs: Sequence[RunAnalysis], h: int) -> tuple[np.ndarray, np.nda
 
 def kl_figure(analyses: Sequence[RunAnalysis], path: Path) -> None:
     """KL(measured truth || learned) per height over experiments, mean +- sd over seeds, one
-    line per method (cf. Figures 5 and 9)."""
-    methods = list(dict.fromkeys(a.method for a in analyses))
+    line per strategy (cf. Figures 5 and 9)."""
+    strategies = list(dict.fromkeys(a.strategy for a in analyses))
     heights = analyses[0].kl.shape[1]
     fig, axes = plt.subplots(1, heights, figsize=(3.3 * heights, 3.2), squeeze=False,
                              sharey=True)
     for h, ax in enumerate(axes[0]):
-        for k, method in enumerate(methods):
-            runs = [a for a in analyses if a.method == method and len(a.kl)]
+        for k, strategy in enumerate(strategies):
+            runs = [a for a in analyses if a.strategy == strategy and len(a.kl)]
             if not runs:
                 continue
             mean, sd = _mean_curve(runs, h)
             x = np.arange(1, len(mean) + 1)
-            ax.plot(x, mean, color=f"C{k}", label=f"{method} ({len(runs)} seeds)")
+            ax.plot(x, mean, color=f"C{k}", label=f"{strategy} ({len(runs)} seeds)")
             ax.fill_between(x, mean - sd, mean + sd, color=f"C{k}", alpha=0.15)
         ax.axvline(USABLE_AFTER, color="grey", lw=0.6, ls=":")
         ax.set_title(f"height {h}", fontsize=9)
@@ -215,78 +223,48 @@ def kl_figure(analyses: Sequence[RunAnalysis], path: Path) -> None:
     plt.close(fig)
 
 
-def experience_figure(analyses: Sequence[RunAnalysis], path: Path, method: str) -> None:
-    """Cumulative direct (query) and planned experience per height, mean over seeds (cf.
-    Figure 4)."""
-    runs = [a for a in analyses if a.method == method and len(a.states)]
+def experience_figure(analyses: Sequence[RunAnalysis], path: Path, strategy: str) -> None:
+    """Cumulative direct (query) and planned experience per height, mean over the seeds of
+    `strategy` (cf. Figure 4)."""
+    runs = [a for a in analyses if a.strategy == strategy and len(a.states)]
     if not runs:
         return
-    n = min(len(r.states) for r in runs)
-    heights = runs[0].kl.shape[1]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
-    x = np.arange(1, n + 1)
-    for ax, mode in zip(axes, ("query", "plan"), strict=True):
-        for h in range(heights):
-            curves = np.array([np.cumsum([(m == mode) and s == h for m, s in
-                                          zip(r.modes[:n], r.states[:n], strict=True)])
-                               for r in runs])
-            ax.plot(x, curves.mean(axis=0), label=f"height {h}")
-        ax.set_title(("direct" if mode == "query" else "planned") + f" exploration ({method}, "
-                     f"mean of {len(runs)} seeds)", fontsize=9)
-        ax.set_xlabel("experiment")
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("cumulative experience")
-    axes[0].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    run_report.experience_figure([(r.modes, r.states) for r in runs], runs[0].kl.shape[1] - 1,
+                                 path, f" ({strategy}, mean of {len(runs)} seeds)")
 
 
 def model_figure(analysis: RunAnalysis, truth: TruthTable, path: Path) -> None:
     """The learned model of one run with its confidence band per height, the measured truth
     (as a margin 2p - 1, with its Wilson interval) beside it (cf. Figure 13)."""
-    from .robot_truth import wilson_interval
-
     heights = analysis.kl.shape[1]
     n_actions = analysis.final_margin.shape[1]
-    actions = np.arange(1, n_actions + 1)
     counts = analysis.actions_tried(n_actions, heights - 1)
     p = truth.p_stable()
     fig, axes = plt.subplots(1, heights, figsize=(3.2 * heights, 3.4), squeeze=False)
     for h, ax in enumerate(axes[0]):
         # pairs that cannot occur (on the table only action 1) are not drawn
         occurs = truth.possible[h] if h < truth.n_states else np.ones(n_actions, dtype=bool)
-        margin = np.where(occurs, analysis.final_margin[h], np.nan)
-        chi = np.where(occurs, analysis.final_chi[h], np.nan)
-        ax.fill_between(actions, margin - chi, margin + chi, color="lightsteelblue",
-                        label="learned +- chi")
-        ax.plot(actions, margin, "b.-", label="learned margin")
+        run_report.draw_margins(ax, np.where(occurs, analysis.final_margin[h], np.nan),
+                                np.where(occurs, analysis.final_chi[h], np.nan),
+                                np.where(occurs, counts[h], np.nan), f"height {h}")
         labelled = False
         for a in range(n_actions):
             if not occurs[a]:
                 ax.text(a + 1, 0.0, "cannot occur", ha="center", va="center", fontsize=6,
                         color="grey", rotation=90)
-                continue
-            if h < truth.n_states and np.isfinite(p[h, a]):
+            elif h < truth.n_states and np.isfinite(p[h, a]):
                 lo, hi = wilson_interval(int(truth.stayed[h, a]), int(truth.trials[h, a]))
                 ax.errorbar(a + 1.12, 2 * p[h, a] - 1, yerr=[[2 * (p[h, a] - lo)],
                             [2 * (hi - p[h, a])]], fmt="s", color="k", ms=3, lw=0.8,
                             label=None if labelled else "measured truth (Wilson 95 %)")
                 labelled = True
-            ax.annotate(str(int(counts[h, a])), (a + 1, -1.45), ha="center", fontsize=7,
-                        color="grey")
-        ax.axhline(0, color="grey", lw=0.5)
-        ax.set_ylim(-1.6, 1.6)
-        ax.set_xticks(actions)
-        ax.set_title(f"height {h}", fontsize=9)
-        ax.set_xlabel("action (bits on + 1)")
     axes[0, 0].set_ylabel("margin (+1 stays, -1 falls)")
     legend: dict = {}
     for ax in axes[0]:
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             legend.setdefault(label, handle)
     fig.legend(list(legend.values()), list(legend), fontsize=7, loc="lower center", ncol=3)
-    fig.suptitle(f"Learned model, {analysis.method} seed {analysis.seed}, after "
+    fig.suptitle(f"Learned model, {analysis.strategy} seed {analysis.seed}, after "
                  f"{len(analysis.states)} experiments (grey: experiments per action)",
                  fontsize=10)
     fig.tight_layout(rect=(0, 0.08, 1, 1))
@@ -297,8 +275,6 @@ def model_figure(analysis: RunAnalysis, truth: TruthTable, path: Path) -> None:
 def truth_figure(truth: TruthTable, path: Path) -> None:
     """Measured P(stays) per height and action with Wilson 95 % intervals; impossible pairs
     marked as such."""
-    from .robot_truth import wilson_interval
-
     p = truth.p_stable()
     fig, axes = plt.subplots(1, truth.n_states, figsize=(3.0 * truth.n_states, 3.0),
                              squeeze=False, sharey=True)
@@ -328,86 +304,3 @@ def truth_figure(truth: TruthTable, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-#: the paper's four columns (Figures 10-12)
-CONTACT_COLUMNS = ("fovea search", "pick", "place", "observation")
-
-
-def contact_sheet(rows: Sequence[Mapping], path: Path, width_px: int = 240) -> None:
-    """Rows of {"caption": str, "images": [rgb|None] * 4, "label": +1|-1}: one experiment per
-    row, the paper's four columns, each image scaled to `width_px`; a missing frame is grey."""
-    tiles = []
-    header = np.full((28, width_px * 4 + 150, 3), 255, np.uint8)
-    for k, name in enumerate(CONTACT_COLUMNS):
-        cv2.putText(header, name, (150 + k * width_px + 8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55,
-                    (0, 0, 0), 1, cv2.LINE_AA)
-    tiles.append(header)
-    for row in rows:
-        cells = []
-        height = None
-        for img in row["images"]:
-            if img is None:
-                continue
-            height = int(round(img.shape[0] * width_px / img.shape[1]))
-            break
-        height = height or int(width_px * 0.75)
-        for img in row["images"]:
-            if img is None:
-                cells.append(np.full((height, width_px, 3), 160, np.uint8))
-            else:
-                cells.append(cv2.resize(np.ascontiguousarray(img), (width_px, height),
-                                        interpolation=cv2.INTER_AREA))
-        side = np.full((height, 150, 3), 255, np.uint8)
-        colour = (0, 150, 0) if row.get("label", 0) > 0 else (200, 0, 0)
-        for j, line in enumerate(str(row["caption"]).split("\n")):
-            cv2.putText(side, line, (6, 22 + 20 * j), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
-                        colour if j == len(str(row["caption"]).split("\n")) - 1 else (0, 0, 0),
-                        1, cv2.LINE_AA)
-        tiles.append(np.hstack([side, *cells]))
-    sheet = np.vstack(tiles)
-    cv2.imwrite(str(path), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
-
-
-# -- the truth measurement: which outcome a placement had ----------------------------------
-
-
-@dataclass(frozen=True)
-class TrueBlock:
-    """What the outcome needs of one block of sim/ground_truth."""
-
-    id: str
-    x: float
-    y: float
-    z: float
-    level: int
-    flat: bool = True  # on its top or bottom face (not on a side, not leaning)
-
-
-def placement_stayed(before: Sequence[TrueBlock], after: Sequence[TrueBlock], placed: str,
-                     stack: Sequence[str], moved_tol_m: float = 0.01) -> bool:
-    """The placed block lies flat on top of the stack it was placed upon (level height + 1),
-    and the stack's blocks are still where they were: the paper's 'stable'. On the table
-    (empty stack) a placement stays when the block lies flat at level 1. A block that came to
-    rest on its side fell over, on the stack or not (the judge says the same)."""
-    now = {b.id: b for b in after}
-    then = {b.id: b for b in before}
-    block = now.get(placed)
-    if block is None or block.level != len(stack) + 1 or not block.flat:
-        return False
-    for bid in stack:
-        a, b = then.get(bid), now.get(bid)
-        if a is None or b is None or b.level != a.level:
-            return False
-        if np.hypot(b.x - a.x, b.y - a.y) > moved_tol_m or abs(b.z - a.z) > moved_tol_m:
-            return False
-    return True
-
-
-def truth_schedule(trials: int, max_height: int, n_actions: int, table_action: int = 1
-                   ) -> list[tuple[int, int]]:
-    """The (height, action) pairs to measure, `trials` rounds of every pair that can occur,
-    round by round (so an interrupted measurement is balanced)."""
-    pairs = [(0, table_action)] + [(h, a) for h in range(1, max_height + 1)
-                                   for a in range(1, n_actions + 1)]
-    return [pair for _ in range(trials) for pair in pairs]

@@ -4,14 +4,15 @@ On the robot there is no `u^s` to draw (section 3.1 has one per height): the tru
 placements in the simulator actually do. `katana-robot truth` measures, for every (height,
 action) the fovea can realise, the fraction of placements that stayed, with a Wilson 95 %
 interval; pairs that cannot occur (on the table only action 1, "no overlap") are kept apart as
-impossible, never as zeros, and count in no divergence.
+impossible, never as zeros, and count in no divergence. Which outcome a placement had is read
+from the simulator's ground truth (`placement_stayed`), in the order of `truth_schedule`.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -130,3 +131,47 @@ def kl_to_truth(truth: TruthTable, learned_margin: np.ndarray) -> dict[int, floa
         if measured.any():
             out[s] = float(bernoulli_kl(p[s, measured], q[s, measured]).mean())
     return out
+
+
+# -- the measurement: which outcome a placement had --------------------------------------
+
+
+@dataclass(frozen=True)
+class TrueBlock:
+    """What the outcome needs of one block of sim/ground_truth."""
+
+    id: str
+    x: float
+    y: float
+    z: float
+    level: int
+    flat: bool = True  # on its top or bottom face (not on a side, not leaning)
+
+
+def placement_stayed(before: Sequence[TrueBlock], after: Sequence[TrueBlock], placed: str,
+                     stack: Sequence[str], moved_tol_m: float = 0.01) -> bool:
+    """The placed block lies flat on top of the stack it was placed upon (level height + 1),
+    and the stack's blocks are still where they were: the paper's 'stable'. On the table
+    (empty stack) a placement stays when the block lies flat at level 1. A block that came to
+    rest on its side fell over, on the stack or not (the judge says the same)."""
+    now = {b.id: b for b in after}
+    then = {b.id: b for b in before}
+    block = now.get(placed)
+    if block is None or block.level != len(stack) + 1 or not block.flat:
+        return False
+    for bid in stack:
+        a, b = then.get(bid), now.get(bid)
+        if a is None or b is None or b.level != a.level:
+            return False
+        if np.hypot(b.x - a.x, b.y - a.y) > moved_tol_m or abs(b.z - a.z) > moved_tol_m:
+            return False
+    return True
+
+
+def truth_schedule(trials: int, max_height: int, n_actions: int, table_action: int = 1
+                   ) -> list[tuple[int, int]]:
+    """The (height, action) pairs to measure, `trials` rounds of every pair that can occur,
+    round by round (so an interrupted measurement is balanced)."""
+    pairs = [(0, table_action)] + [(h, a) for h in range(1, max_height + 1)
+                                   for a in range(1, n_actions + 1)]
+    return [pair for _ in range(trials) for pair in pairs]

@@ -1,9 +1,10 @@
-"""Parameter sweeps of the abstract world on Ray: every cell x seed x method as one Ray task.
+"""Parameter sweeps of the abstract world on Ray: every cell x seed x strategy as one Ray task.
 
 A local Ray on this machine by default (num_cpus workers), an existing cluster with `address`
 (its nodes need this package installed, as on this machine). Rows are appended to sweep.csv as
-runs finish, so an interrupted sweep resumes: rows already in the file (same method, seed,
-steps and parameters) are not run again. summary.json and sensitivity.png are written from the
+runs finish, so an interrupted sweep resumes: rows already in the file (same strategy, seed,
+experiments and parameters) are not run again; a sweep.csv of before the renaming (columns
+"method" and "steps") is read as well. summary.json and sensitivity.png are written from the
 rows of the sweep asked for.
 """
 
@@ -20,9 +21,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from katana_curiosity.core.explorer import PLAN, QUERY, RANDOM, STRATEGIES
+from katana_curiosity.core.explorer import PLAN, QUERY, RANDOM
+from katana_curiosity.core.strategies import STRATEGIES
+from tqdm import tqdm
 
-from .experiments import FAST_METHOD_NAMES, RunConfig, run
+from .experiments import FAST_STRATEGY_NAMES, RunConfig, run
 
 # What a grid may sweep, with its type; every other RunConfig field is fixed for the sweep.
 SWEEPABLE: dict[str, type] = {
@@ -32,9 +35,11 @@ SWEEPABLE: dict[str, type] = {
     "n_blocks": int,
     "n_features": int,
 }
-PARAMETERS = tuple(SWEEPABLE)  # the columns identifying a run, with method, seed and steps
+PARAMETERS = tuple(SWEEPABLE)  # the columns identifying a run, with strategy, seed, experiments
 DEFAULT_GRID = {"alpha": (0.5, 1.0, 2.0), "theta": (0.001, 0.01, 0.1)}
-DEFAULT_SWEEP_METHODS = ("q1", "random")
+DEFAULT_SWEEP_STRATEGIES = ("q1", "random")
+#: columns of a sweep.csv written before "one word per concept": old name -> name
+RENAMED_COLUMNS = {"method": "strategy", "steps": "experiments"}
 
 
 def parse_grid_axis(text: str) -> tuple[str, tuple[float | int, ...]]:
@@ -60,24 +65,24 @@ def parse_grid_axis(text: str) -> tuple[str, tuple[float | int, ...]]:
 
 @dataclass(frozen=True)
 class SweepSpec:
-    """The grid (axis -> values), the methods, the seeds and the run length of a sweep."""
+    """The grid (axis -> values), the strategies, the seeds and the run length of a sweep."""
 
     grid: dict[str, tuple] = field(default_factory=lambda: dict(DEFAULT_GRID))
-    methods: tuple[str, ...] = DEFAULT_SWEEP_METHODS
+    strategies: tuple[str, ...] = DEFAULT_SWEEP_STRATEGIES
     seeds: int = 20
     first_seed: int = 0
-    steps: int = 10_000
+    experiments: int = 10_000
     base: dict[str, float | int] = field(default_factory=dict)  # fixed values of other fields
 
     def __post_init__(self) -> None:
-        unknown = [m for m in self.methods if m not in STRATEGIES]
-        if not self.methods or unknown:
-            raise ValueError(f"unknown method(s) {unknown}: choose from {sorted(STRATEGIES)}")
+        unknown = [m for m in self.strategies if m not in STRATEGIES]
+        if not self.strategies or unknown:
+            raise ValueError(f"unknown strategy(s) {unknown}: choose from {sorted(STRATEGIES)}")
         bad = [k for k in (*self.grid, *self.base) if k not in SWEEPABLE]
         if bad:
             raise ValueError(f"cannot sweep or fix {bad}: choose from {', '.join(SWEEPABLE)}")
-        if self.seeds < 1 or self.steps < 1:
-            raise ValueError("seeds and steps must be >= 1")
+        if self.seeds < 1 or self.experiments < 1:
+            raise ValueError("seeds and experiments must be >= 1")
         self.configs()  # RunConfig validates every cell's values (alpha > 0, ...)
 
     def cells(self) -> list[dict[str, float | int]]:
@@ -89,19 +94,19 @@ class SweepSpec:
 
     def configs(self) -> list[RunConfig]:
         return [
-            RunConfig(method=m, seed=s, steps=self.steps, **{**self.base, **cell})
+            RunConfig(strategy=m, seed=s, experiments=self.experiments, **{**self.base, **cell})
             for cell in self.cells()
             for s in range(self.first_seed, self.first_seed + self.seeds)
-            for m in self.methods
+            for m in self.strategies
         ]
 
 
 def run_key(row: dict) -> tuple:
-    """What identifies a run in sweep.csv: method, seed, steps and every parameter."""
+    """What identifies a run in sweep.csv: strategy, seed, experiments and every parameter."""
     return (
-        str(row["method"]),
+        str(row["strategy"]),
         int(row["seed"]),
-        int(row["steps"]),
+        int(row["experiments"]),
         *(SWEEPABLE[p](row[p]) for p in PARAMETERS),
     )
 
@@ -109,9 +114,9 @@ def run_key(row: dict) -> tuple:
 def config_row(config: RunConfig) -> dict:
     fields = asdict(config)
     return {
-        "method": config.method,
+        "strategy": config.strategy,
         "seed": config.seed,
-        "steps": config.steps,
+        "experiments": config.experiments,
         **{p: fields[p] for p in PARAMETERS},
     }
 
@@ -138,12 +143,14 @@ def run_row(config_fields: dict) -> dict:
 
 
 def read_rows(path: Path) -> list[dict]:
-    """The complete rows of sweep.csv (a row cut short by a crash is left out: it runs again)."""
+    """The complete rows of sweep.csv (a row cut short by a crash is left out: it runs again),
+    with the columns of an older file under their names of now (in the file's order)."""
     if not path.exists():
         return []
     _drop_cut_line(path)
     with open(path, newline="") as f:
-        return [r for r in csv.DictReader(f) if _complete(r)]
+        rows = [{RENAMED_COLUMNS.get(k, k): v for k, v in r.items()} for r in csv.DictReader(f)]
+    return [r for r in rows if _complete(r)]
 
 
 def _complete(row: dict) -> bool:
@@ -166,7 +173,7 @@ def _drop_cut_line(path: Path) -> None:
 def _ray():
     # No network at run time: Ray's usage statistics stay off (set before ray is imported).
     os.environ["RAY_USAGE_STATS_ENABLED"] = "0"
-    import ray
+    import ray  # heavy, and only after the setting above: ray reads it when imported
 
     return ray
 
@@ -194,8 +201,8 @@ def run_sweep(
     todo = [c for c in configs if run_key(config_row(c)) not in done]
     ran = 0
     if todo:
-        if any(c.method in FAST_METHOD_NAMES for c in todo):
-            from katana_curiosity.core.fastpath import warm_up
+        if any(c.strategy in FAST_STRATEGY_NAMES for c in todo):
+            from katana_curiosity.core.fastpath import warm_up  # numba: only for fast runs
 
             warm_up()  # compiles once here rather than in every worker on a fresh checkout
         ray = _ray()
@@ -226,6 +233,8 @@ def run_sweep(
         json.dump(summary, f, indent=2)
         f.write("\n")
     if figures:
+        from .figures import sensitivity_figure  # matplotlib only when figures are wanted
+
         sensitivity_figure(spec, rows, out / "sensitivity.png")
     return summary
 
@@ -234,9 +243,9 @@ def csv_header(spec: SweepSpec) -> list[str]:
     """sweep.csv's columns: a KL column for every height any cell of the sweep has."""
     most = max(c.n_blocks for c in spec.configs())
     return [
-        "method",
+        "strategy",
         "seed",
-        "steps",
+        "experiments",
         *PARAMETERS,
         "final_kl_overall",
         *(f"final_kl_{h}" for h in range(1, most)),
@@ -250,8 +259,6 @@ def csv_header(spec: SweepSpec) -> list[str]:
 
 
 def _submit(ray, todo, csv_path, header, progress, on_row) -> int:
-    from tqdm import tqdm
-
     task = ray.remote(num_cpus=1)(run_row)
     pending = [task.remote(asdict(c)) for c in todo]
     ran = 0
@@ -291,14 +298,14 @@ def _stats(values: Sequence[float]) -> dict[str, float]:
 
 
 def summarise_sweep(spec: SweepSpec, rows: Sequence[dict]) -> dict:
-    """Final overall KL per cell and method, and per value of each swept parameter."""
+    """Final overall KL per cell and strategy, and per value of each swept parameter."""
     cells = []
     for cell in spec.cells():
-        entry = {"parameters": cell, "methods": {}}
-        for m in spec.methods:
-            kl = [float(r["final_kl_overall"]) for r in rows if _matches(r, cell, m)]
+        entry = {"parameters": cell, "strategies": {}}
+        for m in spec.strategies:
+            kl = [float(r["final_kl_overall"]) for r in rows if matches(r, cell, m)]
             if kl:
-                entry["methods"][m] = {"final_kl_overall": _stats(kl)}
+                entry["strategies"][m] = {"final_kl_overall": _stats(kl)}
         cells.append(entry)
     marginal = {}
     for name, values in spec.grid.items():
@@ -308,19 +315,19 @@ def summarise_sweep(spec: SweepSpec, rows: Sequence[dict]) -> dict:
                     [
                         float(r["final_kl_overall"])
                         for r in rows
-                        if r["method"] == m and math.isclose(float(r[name]), float(v))
+                        if r["strategy"] == m and math.isclose(float(r[name]), float(v))
                     ]
                     or [math.nan]
                 )
                 for v in values
             }
-            for m in spec.methods
+            for m in spec.strategies
         }
     return {
         "grid": {k: list(v) for k, v in spec.grid.items()},
-        "methods": list(spec.methods),
+        "strategies": list(spec.strategies),
         "seeds": list(range(spec.first_seed, spec.first_seed + spec.seeds)),
-        "steps": spec.steps,
+        "experiments": spec.experiments,
         "base": dict(spec.base),
         "runs": len(rows),
         "cells": cells,
@@ -328,60 +335,8 @@ def summarise_sweep(spec: SweepSpec, rows: Sequence[dict]) -> dict:
     }
 
 
-def _matches(row: dict, cell: dict, method: str) -> bool:
-    return row["method"] == method and all(
+def matches(row: dict, cell: dict, strategy: str) -> bool:
+    """The row is a run of `strategy` in `cell`."""
+    return row["strategy"] == strategy and all(
         math.isclose(float(row[k]), float(v)) for k, v in cell.items()
     )
-
-
-def sensitivity_figure(spec: SweepSpec, rows: Sequence[dict], path: Path) -> None:
-    """Final overall KL against each swept parameter, per method; one line per combination of
-    the other parameters, the band the spread (one standard deviation) over seeds."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from .figures import METHOD_LABELS
-
-    names = list(spec.grid)
-    fig, axes = plt.subplots(1, len(names), figsize=(6 * len(names), 4.5), squeeze=False)
-    colors = plt.get_cmap("tab10")
-    styles = ["-", "--", ":", "-."]
-    for ax, name in zip(axes.flat, names, strict=True):
-        others = {k: v for k, v in spec.grid.items() if k != name}
-        combos = [
-            dict(zip(others, vs, strict=True)) for vs in itertools.product(*others.values())
-        ] or [{}]
-        xs = np.array(spec.grid[name], dtype=float)
-        for mi, m in enumerate(spec.methods):
-            for ci, combo in enumerate(combos):
-                stats = []
-                for x in spec.grid[name]:
-                    kl = [
-                        float(r["final_kl_overall"])
-                        for r in rows
-                        if _matches(r, {**combo, name: x}, m)
-                    ]
-                    stats.append((np.mean(kl), np.std(kl)) if kl else (np.nan, np.nan))
-                mean, std = np.array(stats).T
-                label = METHOD_LABELS.get(m, m)
-                if combo:
-                    label += " (" + ", ".join(f"{k}={v:g}" for k, v in combo.items()) + ")"
-                color = colors(mi % 10)
-                ax.plot(xs, mean, styles[ci % 4], marker="o", color=color, label=label, lw=1.2)
-                ax.fill_between(xs, mean - std, mean + std, color=color, alpha=0.12)
-        if np.all(xs > 0) and xs.max() / xs.min() >= 10:
-            ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel(name)
-        ax.set_ylabel("final KL(true || learned), mean of heights")
-        ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7)
-    fig.suptitle(
-        f"Sensitivity after {spec.steps} steps: mean and spread over {spec.seeds} seeds",
-        fontsize=10,
-    )
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

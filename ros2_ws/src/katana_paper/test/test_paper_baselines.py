@@ -6,17 +6,10 @@ import numpy as np
 import pytest
 from katana_curiosity.core.abstract_world import AbstractBlocksWorld
 from katana_curiosity.core.environment import Setting
-from katana_curiosity.core.explorer import (
-    PLAN,
-    Q1,
-    QUERY,
-    RANDOM,
-    STRATEGIES,
-    Explorer,
-    make_strategy,
-)
+from katana_curiosity.core.explorer import PLAN, Q1, QUERY, RANDOM, Explorer
 from katana_curiosity.core.planner import Planner, value_iteration
-from katana_curiosity.core.predictors import PredictorBank, QueryRule
+from katana_curiosity.core.predictors import ALPHA, THETA_ROBOT, PredictorBank, QueryRule
+from katana_curiosity.core.strategies import STRATEGIES, make_strategy
 from katana_curiosity.core.strategies_baselines import (
     EpsilonGreedy,
     LearningProgress,
@@ -26,13 +19,12 @@ from katana_curiosity.core.strategies_baselines import (
 from katana_paper.curiosity_cli import main
 
 
-def make(method: str, seed: int = 0, rule: QueryRule | None = None):
+def make(strategy: str, seed: int = 0, rule: QueryRule | None = None):
     world = AbstractBlocksWorld(seed=seed)
     bank = PredictorBank(
         world.learned_heights, world.features, rule or QueryRule(), n_states=world.top + 1
     )
-    strategy = make_strategy(method, bank, world.top, seed=seed)
-    return world, bank, strategy
+    return world, bank, make_strategy(strategy, bank, world.top, seed=seed)
 
 
 def test_baselines_are_registered_by_name() -> None:
@@ -74,7 +66,7 @@ def test_learning_progress_hears_every_learned_example() -> None:
 
 
 def test_variance_is_drawn_to_a_noisy_outcome_that_q1_knows() -> None:
-    rule = QueryRule(1.0, 0.1)
+    rule = QueryRule(ALPHA, THETA_ROBOT)
     world, bank, variance = make("variance", rule=rule)
     q1 = Q1(bank, world.top)
     for i in range(3000):  # action 3 at height 1 is a coin flip, and well known to be one
@@ -147,12 +139,12 @@ def test_egreedy_plan_is_the_optimum_of_the_phantom_query_mdp() -> None:
 
 def test_paper_command_compares_the_baselines_in_summary_and_figure(tmp_path) -> None:
     out = tmp_path / "paper"
-    methods = ["q1", "conf", "random", "lp", "variance", "rmax"]
-    argv = ["paper", "--steps", "150", "--seeds", "2", "--methods", ",".join(methods)]
+    strategies = ["q1", "conf", "random", "lp", "variance", "rmax"]
+    argv = ["paper", "--experiments", "150", "--seeds", "2", "--strategies", ",".join(strategies)]
     assert main([*argv, "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert list(summary["methods"]) == methods
-    for m in methods:
+    assert list(summary["strategies"]) == strategies
+    for m in strategies:
         assert (out / "runs" / f"{m}_seed1.csv").exists()
     for name in ("fig4", "fig5", "fig6", "fig7", "fig8", "fig9"):
         assert (out / f"{name}.png").read_bytes()[:4] == b"\x89PNG"

@@ -1,4 +1,4 @@
-"""Metrics against brute force, and the paper command's outputs."""
+"""Metrics against brute force, runs of the abstract world, and the paper command's outputs."""
 
 import csv
 import json
@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from katana_curiosity.core.explorer import PLAN, QUERY
-from katana_paper.curiosity_cli import main
+from katana_paper.curiosity_cli import build_parser, main
 from katana_paper.experiments import RunConfig, run, summarise
 from katana_paper.metrics import (
     bernoulli_kl,
@@ -60,10 +60,12 @@ def test_cumulative_counts_and_histograms_match_brute_force(seed: int) -> None:
 
 
 def test_run_records_are_consistent() -> None:
-    result = run(RunConfig(method="q1", seed=1, steps=700, record_every=100, snapshots=(200,)))
-    assert result.record_steps.tolist() == [0, 100, 200, 300, 400, 500, 600, 700]
+    result = run(
+        RunConfig(strategy="q1", seed=1, experiments=700, record_every=100, snapshots=(200,))
+    )
+    assert result.record_at.tolist() == [0, 100, 200, 300, 400, 500, 600, 700]
     assert result.kl.shape == (8, 7)
-    assert result.snapshot_steps.tolist() == [200, 700]
+    assert result.snapshot_at.tolist() == [200, 700]
     assert set(np.unique(result.labels)) <= {-1, 1}
     assert np.all(result.labels[result.states == 0] == 1), "the table is always stable"
     direct = result.cumulative(QUERY)
@@ -76,13 +78,13 @@ def test_paper_command_writes_summary_csv_and_figures(tmp_path) -> None:
     code = main(
         [
             "paper",
-            "--steps",
+            "--experiments",
             "300",
             "--seeds",
             "2",
             "--jobs",
             "2",
-            "--methods",
+            "--strategies",
             "q1,random",
             "--out",
             str(out),
@@ -90,9 +92,9 @@ def test_paper_command_writes_summary_csv_and_figures(tmp_path) -> None:
     )
     assert code == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["steps"] == 300 and summary["seeds"] == [0, 1]
-    for method in ("q1", "random"):
-        m = summary["methods"][method]
+    assert summary["experiments"] == 300 and summary["seeds"] == [0, 1]
+    for strategy in ("q1", "random"):
+        m = summary["strategies"][strategy]
         assert sorted(m["final_kl"], key=int) == [str(h) for h in range(1, 8)]
         assert m["final_kl_overall"] == pytest.approx(np.mean(list(m["final_kl"].values())))
     for name in ("fig4", "fig5", "fig6", "fig7", "fig8", "fig9"):
@@ -100,22 +102,24 @@ def test_paper_command_writes_summary_csv_and_figures(tmp_path) -> None:
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
     with open(out / "runs" / "q1_seed1.csv") as f:
         rows = list(csv.DictReader(f))
-    assert rows[-1]["step"] == "300"
+    assert rows[-1]["experiment"] == "300"
     total = sum(int(rows[-1][f"direct_{s}"]) + int(rows[-1][f"planned_{s}"]) for s in range(8))
     assert total == 300
 
 
 def test_summary_matches_the_runs() -> None:
-    results = [run(RunConfig(method="q1", seed=s, steps=200)) for s in (0, 1)]
+    results = [run(RunConfig(strategy="q1", seed=s, experiments=200)) for s in (0, 1)]
     summary = summarise(results)
     final = np.mean([r.kl[-1] for r in results], axis=0)
-    assert summary["methods"]["q1"]["final_kl"]["3"] == pytest.approx(final[2])
+    assert summary["strategies"]["q1"]["final_kl"]["3"] == pytest.approx(final[2])
 
 
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--methods", "q1,bogus"], "unknown method"),
+        (["--strategies", "q1,bogus"], "unknown strategy"),
+        (["--methods", "q1,bogus"], "unknown strategy"),
+        (["--experiments", "0"], "must be >= 1"),
         (["--steps", "0"], "must be >= 1"),
         (["--theta", "1.5"], "must be in [0, 1]"),
         (["--alpha", "-1"], "must be > 0"),
@@ -154,3 +158,48 @@ def test_every_option_is_checked_before_any_work(tmp_path, capsys, command, args
     assert f"katana-curiosity {command}: error: argument {option}" in err
     assert f"usage: katana-curiosity {command}" in err
     assert not (tmp_path / "run" / "summary.json").exists()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_q1_reaches_height_five_within_a_bounded_number_of_experiments(seed: int) -> None:
+    result = run(RunConfig(strategy="q1", seed=seed, experiments=1000))
+    assert result.states.max() >= 5
+
+
+def test_planned_outcomes_also_update_the_model() -> None:
+    result = run(RunConfig(strategy="conf", seed=0, experiments=300))
+    assert np.all(result.modes == PLAN)
+    assert np.any(result.kl[-1] < result.kl[0]), "learning happened from planned experiments alone"
+
+
+@pytest.mark.parametrize("strategy", ["q1", "q10", "conf", "random"])
+def test_same_seed_same_results(strategy: str) -> None:
+    a = run(RunConfig(strategy=strategy, seed=4, experiments=600))
+    b = run(RunConfig(strategy=strategy, seed=4, experiments=600))
+    for name in ("states", "actions", "modes", "labels", "kl"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    c = run(RunConfig(strategy=strategy, seed=5, experiments=600))
+    assert not np.array_equal(a.states, c.states)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"strategy": "q2"}, "unknown strategy"),
+        ({"experiments": 0}, "experiments"),
+        ({"alpha": -1.0}, "alpha"),
+        ({"theta": 2.0}, "theta"),
+        ({"gamma": 1.0}, "gamma"),
+    ],
+)
+def test_invalid_run_arguments_give_a_clear_error(kwargs, match) -> None:
+    with pytest.raises(ValueError, match=match):
+        RunConfig(**kwargs)
+
+
+def test_the_old_option_spellings_still_work(tmp_path) -> None:
+    """--steps and --methods, the names of before "experiments" and "strategies"."""
+    args = build_parser().parse_args(
+        ["paper", "--steps", "5", "--methods", "q1,random", "--out", str(tmp_path)]
+    )
+    assert args.experiments == 5 and args.strategies == ["q1", "random"]

@@ -7,23 +7,32 @@ import json
 
 import numpy as np
 import pytest
+from katana_bringup.in_process import InProcessGraph
 from katana_bringup.run import build_nodes
-from katana_bringup.testing import InProcessGraph
+from katana_common.action_client import ActionClient
 from katana_common.testing import private_domain_id
+from katana_curiosity.core.predictors import ALPHA, THETA_ROBOT
 from katana_curiosity.core.robot_loop import robot_bank
 from katana_curiosity.core.run_record import CHECKPOINT_NAME, save_checkpoint
-from katana_paper import robot_cli as robot
+from katana_curiosity.core.skill import LearnedModel, StackingSkill
+from katana_curiosity.skill_node import SkillNode, load_model
+from katana_interfaces.action import BuildStack
+from katana_interfaces.srv import ObserveSetting
+from katana_paper import robot_cli
+from katana_paper.graph_client import GraphClient, graph_params, true_blocks
 from katana_paper.robot_truth import TruthTable
+from katana_paper.truth import TruthMeasurer
+from rclpy.parameter import Parameter
 
 
-def _graph(seed: int, num_blocks: int | None = None) -> tuple[InProcessGraph, robot.GraphClient]:
-    params = robot.graph_params(seed)
+def _graph(seed: int, num_blocks: int | None = None) -> tuple[InProcessGraph, GraphClient]:
+    params = graph_params(seed)
     if num_blocks is not None:
         params["sim_node"]["num_blocks"] = num_blocks
     g = InProcessGraph()
     g.add(*build_nodes("sim", params, g.context,
                        layers=("arm", "perception")))
-    client = robot.GraphClient(g.node("test_client"))
+    client = GraphClient(g.node("test_client"))
     client.wait_ready()
     return g, client
 
@@ -33,7 +42,7 @@ def test_truth_on_a_few_trials_is_close_to_the_hand_built_expectation():
     (none on it) falls: by hand, P = 1 and P = 0. Three trials of each."""
     g, client = _graph(seed=3)
     try:
-        measurer = robot.TruthMeasurer(client, seed=3, max_height=3, block_height_m=0.03)
+        measurer = TruthMeasurer(client, seed=3, max_height=3, block_height_m=0.03)
         table = TruthTable(4, 6)
         for height, action in [(1, 6), (1, 1)] * 3:
             for _ in range(4):  # a setting the fovea cannot realise is built again
@@ -51,7 +60,7 @@ def test_truth_on_a_few_trials_is_close_to_the_hand_built_expectation():
 def _model(tmp_path, good_on_two: bool):
     """A learner taught by constructed experience: the table and action 6 on one block stay;
     on a two-stack every placement falls, or action 6 stays too (`good_on_two`)."""
-    bank = robot_bank(3, 6, 1.0, 0.1)
+    bank = robot_bank(3, 6, ALPHA, THETA_ROBOT)
     for _ in range(20):
         bank.update(0, 0, 1.0)
         bank.update(1, 5, 1.0)
@@ -72,13 +81,6 @@ def test_skill_node_chooses_what_the_plan_says_in_a_two_stack_setting(tmp_path):
     predicts action 6 holds on two it builds on the two-stack, (2, 6). (The paper's tricky
     situation: with constructed models in test_curiosity_skill, and on the sim at the edge of
     the reach, below.)"""
-    from katana_common.action_client import ActionClient
-    from katana_curiosity.core.skill import LearnedModel, StackingSkill
-    from katana_curiosity.skill_node import SkillNode, load_model
-    from katana_interfaces.action import BuildStack
-    from katana_interfaces.srv import ObserveSetting
-    from rclpy.parameter import Parameter
-
     g, client = _graph(seed=5)
     observe = client.node.create_client(ObserveSetting, "fovea/observe")
 
@@ -94,7 +96,7 @@ def test_skill_node_chooses_what_the_plan_says_in_a_two_stack_setting(tmp_path):
         pytest.fail(f"the fovea never offered (2, 6) and (1, 6): {sorted(offered)}")
 
     try:
-        measurer = robot.TruthMeasurer(client, seed=5, max_height=3, block_height_m=0.03)
+        measurer = TruthMeasurer(client, seed=5, max_height=3, block_height_m=0.03)
         choices, expected = {}, {}
         for good in (False, True):
             offered = two_stack_setting()
@@ -141,17 +143,10 @@ def test_the_tricky_situation_on_the_sim_starts_again_from_height_one(tmp_path):
     model predicts that a block on the two-stack falls unless all five points are on it, so
     the skill starts again from height 1: (1, 6) on a single block, then (2, 6) on the new
     two-stack, and the sim's ground truth has a stack of three."""
-    from katana_common.action_client import ActionClient
-    from katana_curiosity.core.skill import LearnedModel, StackingSkill
-    from katana_curiosity.skill_node import SkillNode, load_model
-    from katana_interfaces.action import BuildStack
-    from katana_interfaces.srv import ObserveSetting
-    from rclpy.parameter import Parameter
-
     g, client = _graph(seed=5, num_blocks=5)
     observe = client.node.create_client(ObserveSetting, "fovea/observe")
     try:
-        measurer = robot.TruthMeasurer(client, seed=5, max_height=3, block_height_m=0.03)
+        measurer = TruthMeasurer(client, seed=5, max_height=3, block_height_m=0.03)
         measurer._build(2, at_xy=EDGE_OF_REACH_XY)
         offered = sorted({(i.state, i.action) for i in client.call(
             observe, ObserveSetting.Request(max_state=3)).instances})
@@ -173,13 +168,13 @@ def test_the_tricky_situation_on_the_sim_starts_again_from_height_one(tmp_path):
             BuildStack.Goal(target_height=3, max_placements=3),
             feedback_callback=lambda f: feedback.append(f.feedback)))
         result = g.result(handle.get_result_async(), 300.0).result
-        truth_height = max(b.level for b in robot.true_blocks(client.truth))
+        truth_height = max(b.level for b in true_blocks(client.truth))
     finally:
         g.close()
-    steps = [(f.state, f.action, f.observed_label) for f in feedback]
-    assert steps[0][:2] == (1, 6), steps
-    assert result.success and result.height_reached == 3, (result.reason, steps)
-    assert steps == [(1, 6, 1), (2, 6, 1)]
+    choices = [(f.state, f.action, f.observed_label) for f in feedback]
+    assert choices[0][:2] == (1, 6), choices
+    assert result.success and result.height_reached == 3, (result.reason, choices)
+    assert choices == [(1, 6, 1), (2, 6, 1)]
     assert truth_height == 3
 
 
@@ -195,13 +190,13 @@ def test_paper_with_two_seeds_writes_every_file(tmp_path):
     truth.save(tmp_path / "truth.json")
     out = tmp_path / "paper"
     domain = private_domain_id()
-    code = robot.main(["paper", "--seeds", "2", "--experiments", "3", "--methods", "q1",
+    code = robot_cli.main(["paper", "--seeds", "2", "--experiments", "3", "--strategies", "q1",
                        "--jobs", "2", "--out", str(out), "--truth", str(tmp_path / "truth.json"),
                        "--domain-base", str(domain)])
     assert code == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["experiments"] == 3 and summary["seeds"] == [0, 1]
-    q1 = summary["methods"]["q1"]
+    q1 = summary["strategies"]["q1"]
     assert q1["experiments_done"] == [3, 3]
     assert set(q1["final_kl"]) == {"0", "1", "2", "3"}
     assert sum(sum(row.values()) for row in q1["actions_tried"].values()) == 6
@@ -214,11 +209,35 @@ def test_paper_with_two_seeds_writes_every_file(tmp_path):
     assert 0.0 <= q1["wasted_share"] <= 1.0
 
 
-@pytest.mark.parametrize("argv", [["paper", "--methods", "q1,nonsense"],
+@pytest.mark.parametrize("argv", [["paper", "--strategies", "q1,nonsense"],
+                                  ["paper", "--methods", "q1,nonsense"],
                                   ["paper", "--seeds", "0"],
                                   ["skill", "--model", "/nonexistent"]])
 def test_bad_command_lines_are_refused_with_a_reason(argv, capsys):
     with pytest.raises(SystemExit) as exc:
-        robot.main(argv)
+        robot_cli.main(argv)
     assert exc.value.code == 2
     assert "katana-robot" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "args, option",
+    [
+        (["truth", "--out", "/proc/no/such/folder"], "--out"),
+        (["truth", "--trials", "0"], "--trials"),
+        (["paper", "--run-timeout", "-5"], "--run-timeout"),
+        (["skill", "--goal-height", "9", "--model", "x"], "--goal-height"),
+    ],
+)
+def test_every_option_is_checked_before_any_work(capsys, args, option):
+    """One line naming the option, the subcommand's usage, exit 2; no graph is started."""
+    with pytest.raises(SystemExit) as exit_info:
+        robot_cli.main(args)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert f"error: argument {option}" in err and "usage: katana-robot" in err
+
+
+def test_the_old_option_spelling_still_works():
+    args = robot_cli.build_parser().parse_args(["paper", "--methods", "q1,random"])
+    assert args.strategies == "q1,random"

@@ -1,4 +1,5 @@
-"""The robot experiment's measures (core.robot_paper) on constructed logs and hand answers."""
+"""The robot experiment's measures (robot_paper, robot_truth, contact_sheet) on constructed logs
+and hand answers."""
 
 from __future__ import annotations
 
@@ -11,9 +12,11 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from katana_curiosity.core.predictors import ALPHA, THETA_ROBOT
 from katana_paper import robot_paper as rp
+from katana_paper.contact_sheet import contact_sheet
 from katana_paper.metrics import bernoulli_kl
-from katana_paper.robot_truth import TruthTable
+from katana_paper.robot_truth import TrueBlock, TruthTable, placement_stayed, truth_schedule
 
 
 @dataclass
@@ -64,7 +67,7 @@ def test_an_experiment_is_wasted_when_known_beforehand_and_leading_nowhere():
     # known, further falls there are wasted. A stayed table placement leads to height 1,
     # whose pairs are still unknown: never wasted.
     records = [Rec(0, 1, 1)] + [Rec(1, 1, -1, "plan") for _ in range(30)]
-    a = rp.analyse_run(records, _truth(), "q1", 0, theta=0.1, alpha=1.0)
+    a = rp.analyse_run(records, _truth(), "q1", 0, theta=THETA_ROBOT, alpha=ALPHA)
     assert not a.known_before[0] and not a.wasted[0]
     assert not a.known_before[1]
     assert a.led_nowhere[1:].all()  # every one fell
@@ -87,9 +90,9 @@ def test_summary_has_the_issue_layout(tmp_path):
     runs = [rp.analyse_run([Rec(0, 1, 1), Rec(1, 6, 1), Rec(2, 3, -1)], truth, m, s)
             for m in ("q1", "random") for s in (0, 1)]
     summary = rp.summarise(runs, 3, [0, 1], "truth.json")
-    assert set(summary) == {"experiments", "seeds", "truth", "methods"}
+    assert set(summary) == {"experiments", "seeds", "truth", "strategies"}
     assert summary["experiments"] == 3 and summary["seeds"] == [0, 1]
-    q1 = summary["methods"]["q1"]
+    q1 = summary["strategies"]["q1"]
     assert set(q1["final_kl"]) == {"0", "1", "2", "3"}
     assert q1["final_kl"]["2"] is None  # nothing measured at height 2
     assert q1["highest_stack"] == 2  # stayed on a one-stack: two blocks
@@ -104,30 +107,30 @@ def test_summary_has_the_issue_layout(tmp_path):
 
 
 def _block(bid, x, y, level, h=0.03):
-    return rp.TrueBlock(bid, x, y, (level - 0.5) * h, level)
+    return TrueBlock(bid, x, y, (level - 0.5) * h, level)
 
 
 def test_placement_stayed_on_hand_built_scenes():
     before = [_block("red", 0.2, 0.0, 1), _block("blue", 0.2, 0.0, 2), _block("green", 0.1, 0.1, 1)]
     on_top = before[:2] + [_block("green", 0.21, 0.0, 3)]
-    assert rp.placement_stayed(before, on_top, "green", ["red", "blue"])
+    assert placement_stayed(before, on_top, "green", ["red", "blue"])
     fell = before[:2] + [_block("green", 0.25, 0.05, 1)]
-    assert not rp.placement_stayed(before, fell, "green", ["red", "blue"])
+    assert not placement_stayed(before, fell, "green", ["red", "blue"])
     toppled = [before[0], _block("blue", 0.24, 0.0, 1), _block("green", 0.2, 0.0, 2)]
-    assert not rp.placement_stayed(before, toppled, "green", ["red", "blue"])
+    assert not placement_stayed(before, toppled, "green", ["red", "blue"])
     shoved = [before[0], _block("blue", 0.215, 0.0, 2), _block("green", 0.22, 0.0, 3)]
-    assert not rp.placement_stayed(before, shoved, "green", ["red", "blue"])
-    assert rp.placement_stayed(before, before, "green", [])  # on the table, flat
+    assert not placement_stayed(before, shoved, "green", ["red", "blue"])
+    assert placement_stayed(before, before, "green", [])  # on the table, flat
     # on the stack at the right level, but lying on its side: it fell over (as the judge says)
-    on_its_side = before[:2] + [rp.TrueBlock("green", 0.21, 0.0, 0.08, 3, flat=False)]
-    assert not rp.placement_stayed(before, on_its_side, "green", ["red", "blue"])
-    on_the_table_on_its_side = before[:2] + [rp.TrueBlock("green", 0.1, 0.1, 0.02, 1, flat=False)]
-    assert not rp.placement_stayed(before, on_the_table_on_its_side, "green", [])
+    on_its_side = before[:2] + [TrueBlock("green", 0.21, 0.0, 0.08, 3, flat=False)]
+    assert not placement_stayed(before, on_its_side, "green", ["red", "blue"])
+    on_the_table_on_its_side = before[:2] + [TrueBlock("green", 0.1, 0.1, 0.02, 1, flat=False)]
+    assert not placement_stayed(before, on_the_table_on_its_side, "green", [])
 
 
 @given(st.integers(1, 5), st.integers(1, 3), st.integers(2, 6))
 def test_truth_schedule_balances_every_possible_pair(trials, max_height, n_actions):
-    schedule = rp.truth_schedule(trials, max_height, n_actions)
+    schedule = truth_schedule(trials, max_height, n_actions)
     counts = {pair: schedule.count(pair) for pair in set(schedule)}
     assert set(counts) == {(0, 1)} | {(h, a) for h in range(1, max_height + 1)
                                       for a in range(1, n_actions + 1)}
@@ -147,7 +150,7 @@ def test_figures_and_contact_sheet_are_written(tmp_path):
     img = np.zeros((48, 64, 3), np.uint8)
     rows = [{"caption": f"#{i}\nh=1 a=6\nstayed", "label": 1, "images": [img, None, img, img]}
             for i in range(12)]
-    rp.contact_sheet(rows, tmp_path / "sheet.png", width_px=64)
+    contact_sheet(rows, tmp_path / "sheet.png", width_px=64)
     for name in ("kl.png", "experience.png", "model.png", "truth.png"):
         assert cv2.imread(str(tmp_path / name)) is not None
     sheet = cv2.imread(str(tmp_path / "sheet.png"))

@@ -47,9 +47,9 @@ def test_grid_axes_parse_and_bad_ones_are_named() -> None:
         with pytest.raises(ValueError, match=match):
             parse_grid_axis(text)
     with pytest.raises(ValueError, match="alpha must be"):
-        SweepSpec(grid={"alpha": (0.0, 1.0)}, seeds=1, steps=10)
-    with pytest.raises(ValueError, match="unknown method"):
-        SweepSpec(methods=("q1", "bogus"))
+        SweepSpec(grid={"alpha": (0.0, 1.0)}, seeds=1, experiments=10)
+    with pytest.raises(ValueError, match="unknown strategy"):
+        SweepSpec(strategies=("q1", "bogus"))
     spec = SweepSpec(grid={"alpha": (1.0, 2.0), "theta": (0.01, 0.1, 0.2)}, seeds=3)
     assert len(spec.cells()) == 6 and len(spec.configs()) == 6 * 3 * 2
 
@@ -62,7 +62,7 @@ def test_bad_grid_on_the_command_line_is_an_argument_error(tmp_path, capsys) -> 
 
 
 def test_a_row_cut_short_by_a_crash_is_dropped_and_runs_again(tmp_path) -> None:
-    spec = SweepSpec(grid={"alpha": (1.0,)}, methods=("q1",), seeds=2, steps=100)
+    spec = SweepSpec(grid={"alpha": (1.0,)}, strategies=("q1",), seeds=2, experiments=100)
     rows = [run_row(asdict(c)) for c in spec.configs()]
     path = tmp_path / "sweep.csv"
     header = csv_header(spec)
@@ -77,6 +77,26 @@ def test_a_row_cut_short_by_a_crash_is_dropped_and_runs_again(tmp_path) -> None:
     assert path.read_text() == text, "the cut line is gone, appends start on a new line"
 
 
+def test_a_sweep_csv_of_before_the_renaming_is_resumed(tmp_path) -> None:
+    """Columns "method" and "steps" (now "strategy" and "experiments"): its runs are reused,
+    read under the names of now; nothing runs again (so no Ray is started)."""
+    spec = SweepSpec(grid={"alpha": (1.0,)}, strategies=("q1",), seeds=2, experiments=100)
+    rows = [run_row(asdict(c)) for c in spec.configs()]
+    old = {"strategy": "method", "experiments": "steps"}
+    header = [old.get(k, k) for k in csv_header(spec)]
+    out = tmp_path / "old"
+    out.mkdir()
+    with open(out / "sweep.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=header, extrasaction="ignore")
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({old.get(k, k): v for k, v in row.items()})
+    assert [run_key(r) for r in read_rows(out / "sweep.csv")] == [run_key(r) for r in rows]
+    summary = run_sweep(spec, out, progress=False, figures=False)
+    assert (summary["ran"], summary["reused"]) == (0, 2)
+    assert summary["cells"][0]["strategies"]["q1"]["final_kl_overall"]["n"] == 2
+
+
 class Interrupt(Exception):
     pass
 
@@ -84,7 +104,9 @@ class Interrupt(Exception):
 def test_tiny_sweep_writes_its_outputs_and_resumes_after_an_interruption(
     ray_session, tmp_path
 ) -> None:
-    spec = SweepSpec(grid={"alpha": (0.5, 2.0)}, methods=("q1", "random"), seeds=2, steps=300)
+    spec = SweepSpec(
+        grid={"alpha": (0.5, 2.0)}, strategies=("q1", "random"), seeds=2, experiments=300
+    )
     out = tmp_path / "sweep"
 
     def stop_after_three(row, seen=[]):  # noqa: B006  (a counter across calls)
@@ -104,9 +126,9 @@ def test_tiny_sweep_writes_its_outputs_and_resumes_after_an_interruption(
     # every row is the run it names, computed again here without Ray
     for row in rows[:2]:
         config = RunConfig(
-            method=row["method"],
+            strategy=row["strategy"],
             seed=int(row["seed"]),
-            steps=300,
+            experiments=300,
             alpha=float(row["alpha"]),
             theta=float(row["theta"]),
         )
@@ -116,14 +138,14 @@ def test_tiny_sweep_writes_its_outputs_and_resumes_after_an_interruption(
 
     saved = json.loads((out / "summary.json").read_text())
     assert saved["runs"] == 8 and saved["grid"] == {"alpha": [0.5, 2.0]}
-    for method in ("q1", "random"):
+    for strategy in ("q1", "random"):
         for alpha in ("0.5", "2.0"):
             kl = [
                 float(r["final_kl_overall"])
                 for r in rows
-                if r["method"] == method and float(r["alpha"]) == float(alpha)
+                if r["strategy"] == strategy and float(r["alpha"]) == float(alpha)
             ]
-            stats = saved["by_parameter"]["alpha"][method][alpha]
+            stats = saved["by_parameter"]["alpha"][strategy][alpha]
             assert stats["n"] == 2 and stats["mean"] == pytest.approx(np.mean(kl))
             assert stats["std"] == pytest.approx(np.std(kl))
     png = (out / "sensitivity.png").read_bytes()
@@ -137,6 +159,7 @@ def test_tiny_sweep_writes_its_outputs_and_resumes_after_an_interruption(
 
 def test_sweep_command_runs_on_the_session(ray_session, tmp_path, capsys) -> None:
     out = tmp_path / "cli"
+    # --methods and --steps: the old spellings of --strategies and --experiments
     argv = ["sweep", "--grid", "theta=0.01,0.1", "--methods", "q1", "--seeds", "1"]
     assert main([*argv, "--steps", "200", "--out", str(out), "--no-figures"]) == 0
     rows = read_rows(out / "sweep.csv")

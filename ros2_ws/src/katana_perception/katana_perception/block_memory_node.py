@@ -20,14 +20,14 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
-from .conversions import blocks_to_msg, node_calibration, seen_from_msg, yaw_of
 from .core.memory import BlockMemory, MemoryParams
-from .specs import EXTRINSICS_FILE, check_files_and_colors
+from .messages import blocks_to_msg, node_calibration, seen_from_msg, yaw_of
+from .perception_params import EXTRINSICS_FILE, check_files_and_colors
 
 #: experiences placing a block farther than this from the pan axis are refused, m
 WORKSPACE_RADIUS_M = 1.0
 
-SPECS = (
+PARAMS = (
     *SCENE_PARAMS, EXTRINSICS_FILE,
     Param("position_tolerance", 0.015, "A block seen farther than this from where it was "
           "remembered has moved, m (live).", 0.001, 0.2, live=True),
@@ -43,7 +43,7 @@ SPECS = (
 class BlockMemoryNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("block_memory_node", **kwargs)
-        self.params = declare_parameters(self, SPECS, check_files_and_colors)
+        self.params = declare_parameters(self, PARAMS, check_files_and_colors)
         self.world_frame = self.params["world_frame"]
         self.block_size = tuple(self.params["block_size"])
         self.memory_params = MemoryParams()

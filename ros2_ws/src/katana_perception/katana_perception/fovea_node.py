@@ -21,25 +21,30 @@ from katana_common.scene import SCENE_PARAMS
 from katana_interfaces.msg import BlockArray
 from katana_interfaces.srv import FindPlacement, ObserveSetting
 from katana_manipulation.core.reach import place_reach_table
+from katana_manipulation.reach_params import REACH_PARAMS, reach_geometry
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from .conversions import (
+from .core.fovea import N_ACTIONS, FoveaParams, FoveaScene, Instance, NotFound
+from .messages import (
     blocks_from_msg,
+    decode_or_warn,
     image_to_rgb,
     instance_to_msg,
     node_calibration,
 )
-from .core.colors import parse_color_table
-from .core.fovea import N_ACTIONS, FoveaParams, FoveaScene, Instance, NotFound
-from .core.segmentation import Segmenter
-from .specs import COLOR_TABLE, EXTRINSICS_FILE, check_files_and_colors
+from .perception_params import (
+    COLOR_TABLE,
+    EXTRINSICS_FILE,
+    check_files_and_colors,
+    segmenter_from,
+)
 
-SPECS = (
-    *SCENE_PARAMS, EXTRINSICS_FILE,
+PARAMS = (
+    *SCENE_PARAMS, *REACH_PARAMS, EXTRINSICS_FILE,
     Param("fovea_size_px", 40, "Fovea window edge, px.", 4, 200),
     Param("point_offset_px", 10.0, "r: the outer test points sit at (+-r, +-r) px.", 0.5, 99.0),
     Param("grid_step_px", 6.0, "Fovea grid step around a stack top, px.", 0.5, 100.0),
@@ -59,15 +64,16 @@ SPECS = (
 
 
 def _fovea_params(p) -> FoveaParams:
-    """Fovea settings; the reach per stack height comes from the arm's kinematics."""
-    bands = place_reach_table(p["max_state"], p["block_size"][2])
+    """Fovea settings; the reach per stack height comes from the arm's kinematics and the
+    executor's pick-and-place geometry (REACH_PARAMS, set for every node under `/**`)."""
+    bands = place_reach_table(p["max_state"], p["block_size"][2], geometry=reach_geometry(p))
     return FoveaParams(
         size_px=p["fovea_size_px"], offset_px=p["point_offset_px"],
         grid_step_px=p["grid_step_px"], grid_radius_px=p["grid_radius_px"],
         fine_step_px=p["fine_step_px"], table_step_m=p["table_step_m"],
-        reach_by_state=tuple((b.min_m, b.max_m) for b in bands if not b.empty),
+        reach_by_height=tuple((b.min_m, b.max_m) for b in bands if not b.empty),
         area_x=tuple(p["play_x"]), area_y=tuple(p["play_y"]), clearance=p["clearance"],
-        max_state=p["max_state"], table_yaw=p["table_yaw"])
+        max_height=p["max_state"], table_yaw=p["table_yaw"])
 
 
 def _cross_check(values) -> str | None:
@@ -84,16 +90,15 @@ def _cross_check(values) -> str | None:
 class FoveaNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("fovea_node", **kwargs)
-        self.params = declare_parameters(self, SPECS, _cross_check)
+        self.params = declare_parameters(self, PARAMS, _cross_check)
         p = self.params
         self.world_frame = p["world_frame"]
         self.block_size = tuple(p["block_size"])
         self.fovea = _fovea_params(p)
         self.mask_source = p["mask_source"]
-        self.segmenter = Segmenter(parse_color_table(p["color_table"]),
-                                   block_size=self.block_size)
+        self.segmenter = segmenter_from(p)
         self.get_logger().info("placement reach per stack height (kinematics): " + ", ".join(
-            f"{s}: {lo:.3f}..{hi:.3f} m" for s, (lo, hi) in enumerate(self.fovea.reach_by_state)))
+            f"{s}: {lo:.3f}..{hi:.3f} m" for s, (lo, hi) in enumerate(self.fovea.reach_by_height)))
 
         self.calibration = None
         self.blocks = None
@@ -122,16 +127,13 @@ class FoveaNode(Node):
             self.calibration = calib
 
     def on_image(self, msg: Image) -> None:
-        try:
-            self.rgb = image_to_rgb(msg)
-        except ValueError as err:
-            self.get_logger().warn(f"image rejected: {err}", throttle_duration_sec=5.0)
+        rgb = decode_or_warn(self, "image", image_to_rgb, msg)
+        if rgb is not None:
+            self.rgb = rgb
 
     def on_blocks(self, msg: BlockArray) -> None:
-        try:
-            blocks = blocks_from_msg(msg)
-        except ValueError as err:
-            self.get_logger().warn(f"memory/blocks rejected: {err}", throttle_duration_sec=5.0)
+        blocks = decode_or_warn(self, "memory/blocks", blocks_from_msg, msg)
+        if blocks is None:
             return
         key = sorted((b.id, b.level, b.support, b.upright) for b in blocks)
         poses = {b.id: (b.x, b.y) for b in blocks}
@@ -165,7 +167,7 @@ class FoveaNode(Node):
 
     def on_observe(self, req: ObserveSetting.Request, res: ObserveSetting.Response):
         try:
-            insts = self._current_scene().observe(max_state=int(req.max_state))
+            insts = self._current_scene().observe(max_height=int(req.max_state))
         except NotFound as err:
             res.success, res.message = False, str(err)
             return res
@@ -182,10 +184,10 @@ class FoveaNode(Node):
         return res
 
     def on_find(self, req: FindPlacement.Request, res: FindPlacement.Response):
-        if not (0 <= req.state <= self.fovea.max_state and 1 <= req.action <= N_ACTIONS):
+        if not (0 <= req.state <= self.fovea.max_height and 1 <= req.action <= N_ACTIONS):
             res.found = False
             res.message = (f"no placement for stack height {req.state}, action {req.action}: "
-                           f"state must be in 0..{self.fovea.max_state} (max_state), action "
+                           f"state must be in 0..{self.fovea.max_height} (max_state), action "
                            f"in 1..{N_ACTIONS}")
             return res
         try:

@@ -28,24 +28,28 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
-from .conversions import (
+from .core.judge import Judge, JudgeParams
+from .messages import (
     blocks_from_msg,
+    decode_or_warn,
     detection_to_msg,
     image_to_rgb,
     node_calibration,
     placement_from_msg,
     rgb_to_image,
 )
-from .core.colors import parse_color_table
-from .core.judge import Judge, JudgeParams
-from .core.segmentation import Segmenter
-from .specs import COLOR_TABLE, EXTRINSICS_FILE, check_files_and_colors
+from .perception_params import (
+    COLOR_TABLE,
+    EXTRINSICS_FILE,
+    check_files_and_colors,
+    segmenter_from,
+)
 
 #: placements the judge accepts: within this distance of the pan axis, below this height, m
 WORKSPACE_RADIUS_M = 1.0
 WORKSPACE_TOP_M = 1.0
 
-SPECS = (
+PARAMS = (
     *SCENE_PARAMS, EXTRINSICS_FILE, COLOR_TABLE,
     Param("saturation_min", 80, "Minimum HSV saturation of a block pixel (live).", 0, 255,
           live=True),
@@ -70,21 +74,17 @@ SPECS = (
 class PerceptionNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("perception_node", **kwargs)
-        self.params = declare_parameters(self, SPECS, check_files_and_colors)
-        p = self.params
-        self.world_frame = p["world_frame"]
-        self.block_size = tuple(p["block_size"])
-        self.segmenter = Segmenter(parse_color_table(p["color_table"]),
-                                   block_size=self.block_size)
+        self.params = declare_parameters(self, PARAMS, check_files_and_colors)
+        self.world_frame = self.params["world_frame"]
+        self.segmenter = segmenter_from(self.params)
         self._segmented: tuple | None = None  # (calibration, levels, blocks) of the last frame
-        self._apply(dict(p))
-        p.on_change(self._apply)
+        self._apply(dict(self.params))
+        self.params.on_change(self._apply)
 
         self.calibration = None
         self.levels: dict[str, int] = {}
         self.memory_blocks = []
         self.latest_rgb: np.ndarray | None = None
-        self.latest_header: Header | None = None
         self.frames = 0
         self.before = None  # (snapshot, frame number)
 
@@ -124,19 +124,15 @@ class PerceptionNode(Node):
         self.calibration = calib
 
     def on_memory_blocks(self, msg: BlockArray) -> None:
-        try:
-            blocks = blocks_from_msg(msg)
-        except ValueError as err:
-            self.get_logger().warn(f"memory/blocks rejected: {err}", throttle_duration_sec=5.0)
+        blocks = decode_or_warn(self, "memory/blocks", blocks_from_msg, msg)
+        if blocks is None:
             return
         self.memory_blocks = blocks
         self.levels = {b.id: b.level for b in blocks}
 
     def on_image(self, msg: Image) -> None:
-        try:
-            rgb = image_to_rgb(msg)
-        except ValueError as err:
-            self.get_logger().warn(f"image rejected: {err}", throttle_duration_sec=5.0)
+        rgb = decode_or_warn(self, "image", image_to_rgb, msg)
+        if rgb is None:
             return
         if self.calibration is None:
             self.get_logger().info("waiting for camera/camera_info", throttle_duration_sec=10.0)
@@ -147,7 +143,7 @@ class PerceptionNode(Node):
                 f"{self.calibration.width}x{self.calibration.height}", throttle_duration_sec=5.0)
             return
         previous = self.latest_rgb
-        self.latest_rgb, self.latest_header = rgb, msg.header
+        self.latest_rgb = rgb
         self.frames += 1
         # A still scene seen by a still camera (the simulator between motions) repeats its
         # frame exactly: the same pixels and levels segment to the same blocks.

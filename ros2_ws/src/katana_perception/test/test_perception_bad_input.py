@@ -21,11 +21,11 @@ from hypothesis import strategies as st
 from katana_interfaces.msg import Block, BlockArray, Experience, FoveaInstance
 from katana_interfaces.srv import FindPlacement, JudgePlacement, ObserveSetting
 from katana_perception.block_memory_node import BlockMemoryNode
-from katana_perception.conversions import blocks_to_msg, rgb_to_image
 from katana_perception.core.calibration import Calibration
 from katana_perception.core.memory import Block as MemBlock
 from katana_perception.core.synthetic import Renderer, stack_block
 from katana_perception.fovea_node import FoveaNode
+from katana_perception.messages import blocks_to_msg, rgb_to_image
 from katana_perception.perception_node import PerceptionNode
 from rclpy.context import Context
 from rclpy.parameter import Parameter

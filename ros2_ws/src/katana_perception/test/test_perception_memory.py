@@ -271,13 +271,13 @@ def test_forgetting_a_block_that_is_gone():
 def test_a_block_that_fell_onto_its_side_is_remembered_so_and_offers_no_placement():
     """Rendered on its side, a block is remembered 40 mm tall on a 40 x 30 footprint; the
     fovea offers no placement on it; stood up again, it is a support again."""
-    from katana_perception.conversions import (
+    from katana_perception.core.fovea import FoveaScene, NotFound
+    from katana_perception.messages import (
         blocks_from_msg,
         blocks_to_msg,
         detection_to_msg,
         seen_from_msg,
     )
-    from katana_perception.core.fovea import FoveaScene, NotFound
     from std_msgs.msg import Header
 
     def look(scene):  # as perception and block_memory see it: through perception/detections

@@ -1,9 +1,9 @@
 """The three nodes in-process: topics, services, bad input, parameter validation, and the
 perception -> memory -> fovea pipeline on rendered images."""
 
+import functools
 import itertools
 import math
-import time
 
 import numpy as np
 import pytest
@@ -11,14 +11,15 @@ import rclpy
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.params import ParameterError
 from katana_common.qos import STATE_QOS
+from katana_common.testing import call_service, spin_until
 from katana_interfaces.msg import BlockArray, Experience
 from katana_interfaces.srv import FindPlacement, JudgePlacement, ObserveSetting
 from katana_perception.block_memory_node import BlockMemoryNode
-from katana_perception.conversions import instance_to_msg, rgb_to_image
 from katana_perception.core.calibration import Calibration
 from katana_perception.core.memory import Block
 from katana_perception.core.synthetic import Renderer, stack_block
 from katana_perception.fovea_node import FoveaNode
+from katana_perception.messages import instance_to_msg, rgb_to_image
 from katana_perception.perception_node import PerceptionNode
 from rclpy.context import Context
 from rclpy.node import Node
@@ -41,6 +42,7 @@ class Harness:
         rclpy.init(context=self.ctx)
         self.ns = f"/t{next(_ns)}"
         self.executor = MultiThreadedExecutor(context=self.ctx)
+        self.spin_until = functools.partial(spin_until, self.executor, timeout_s=15.0)
         self.nodes = []
         self.helper = self.add(Node("helper", context=self.ctx, namespace=self.ns))
         self.info_pub = self.helper.create_publisher(CameraInfo, "camera/camera_info",
@@ -58,12 +60,6 @@ class Harness:
     def make(self, cls, **params):
         overrides = [Parameter(k, value=v) for k, v in params.items()]
         return self.add(cls(context=self.ctx, namespace=self.ns, parameter_overrides=overrides))
-
-    def spin_until(self, cond, timeout=15.0):
-        deadline = time.monotonic() + timeout
-        while not cond() and time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.02)
-        return cond()
 
     def collect(self, msg_type, topic, qos=10):
         got = []
@@ -90,10 +86,7 @@ class Harness:
         self.image_pub.publish(msg)
 
     def call(self, cli, req):
-        assert self.spin_until(cli.service_is_ready)
-        fut = cli.call_async(req)
-        assert self.spin_until(fut.done)
-        return fut.result()
+        return call_service(self.executor, cli, req, timeout_s=15.0)
 
     def close(self):
         for n in self.nodes:
@@ -122,7 +115,7 @@ def test_perception_node_publishes_detections_and_survives_bad_images(ros):
     def feed_until(publish, cond):  # sensor-data QoS may drop: publish until it arrives
         for _ in range(50):
             publish()
-            if ros.spin_until(cond, timeout=0.3):
+            if ros.spin_until(cond, timeout_s=0.3):
                 return True
         return False
 
@@ -133,7 +126,7 @@ def test_perception_node_publishes_detections_and_survives_bad_images(ros):
     for _ in range(5):
         ros.image_pub.publish(bad)
         ros.image_pub.publish(weird)
-        ros.spin_until(lambda: False, timeout=0.05)
+        ros.spin_until(lambda: False, timeout_s=0.05)
     assert dets == []
     assert feed_until(lambda: (ros.camera_info(), ros.image(SCATTER, "bgr8")), lambda: dets)
     got = by_id(dets[-1])
@@ -167,7 +160,7 @@ def test_judge_placement_service(ros):
         for _ in range(50):
             ros.camera_info()
             ros.image(scene)
-            if ros.spin_until(lambda: node.frames > n, timeout=0.3):
+            if ros.spin_until(lambda: node.frames > n, timeout_s=0.3):
                 return
         raise AssertionError("image never arrived")
 
@@ -202,8 +195,8 @@ def test_judge_placement_service(ros):
 
 
 def detections_msg(scene, levels=None):
-    from katana_perception.conversions import detection_to_msg
     from katana_perception.core.segmentation import Segmenter
+    from katana_perception.messages import detection_to_msg
 
     rgb, _ = Renderer(CALIB).render(scene)
     dets = Segmenter().segment(rgb, CALIB, levels)
@@ -222,7 +215,7 @@ def test_block_memory_node(ros):
     for _ in range(50):
         ros.camera_info()
         pub.publish(scatter)
-        if ros.spin_until(lambda: world, timeout=0.3):
+        if ros.spin_until(lambda: world, timeout_s=0.3):
             break
     got = by_id(world[-1])
     assert set(got) == {"red", "green", "blue", "yellow"}
@@ -256,13 +249,13 @@ def test_block_memory_node(ros):
     # an experience with a nonsense label changes nothing
     n = len(world)
     exp_pub.publish(Experience(label=0, moved_block="red"))
-    ros.spin_until(lambda: len(world) > n, timeout=0.5)
+    ros.spin_until(lambda: len(world) > n, timeout_s=0.5)
     assert len(world) == n
 
 
 def blocks_msg(blocks):
-    from katana_perception.conversions import blocks_to_msg
     from katana_perception.core.memory import BlockMemory
+    from katana_perception.messages import blocks_to_msg
 
     m = BlockMemory(CALIB)
     m.set_blocks(blocks)
@@ -315,14 +308,14 @@ def test_pipeline_image_to_instances(ros):
     for _ in range(80):
         ros.camera_info()
         ros.image(SCATTER)
-        if ros.spin_until(blocks_seen, timeout=0.3):
+        if ros.spin_until(blocks_seen, timeout_s=0.3):
             break
     assert blocks_seen()
     # red is picked and put on blue (no experience message: the memory infers it)
     for _ in range(80):
         ros.camera_info()
         ros.image(scene)
-        if ros.spin_until(lambda: by_id(world[-1])["red"].level == 2, timeout=0.3):
+        if ros.spin_until(lambda: by_id(world[-1])["red"].level == 2, timeout_s=0.3):
             break
     got = by_id(world[-1])
     assert got["red"].level == 2 and not got["blue"].on_top
@@ -417,7 +410,7 @@ def test_live_parameters_apply_and_read_only_ones_are_refused(ros):
     for name, value in (("mask_source", "image"), ("max_state", 2), ("camera_position", 0.3)):
         ro = set_param("fovea_node", name, value)
         assert not ro.successful, name
-    assert fovea.mask_source == "memory" and fovea.fovea.max_state == 3
+    assert fovea.mask_source == "memory" and fovea.fovea.max_height == 3
 
 
 def test_a_repeated_frame_gives_the_same_blocks_without_segmenting_it_again(ros):
@@ -436,7 +429,7 @@ def test_a_repeated_frame_gives_the_same_blocks_without_segmenting_it_again(ros)
         for _ in range(50):
             ros.camera_info()
             ros.image_pub.publish(msg)
-            if ros.spin_until(lambda: dets and dets[-1].header.stamp.sec == sec, timeout=0.3):
+            if ros.spin_until(lambda: dets and dets[-1].header.stamp.sec == sec, timeout_s=0.3):
                 return
         raise AssertionError(f"no detections for the frame stamped {sec}")
 

@@ -9,10 +9,10 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from katana_description.models import stands_upright
-from katana_perception.conversions import detection_to_msg
 from katana_perception.core.calibration import Calibration
 from katana_perception.core.memory import Block, footprint_overlap
 from katana_perception.core.segmentation import Segmenter, wrap_quarter
+from katana_perception.messages import detection_to_msg
 
 
 @pytest.fixture(scope="module")

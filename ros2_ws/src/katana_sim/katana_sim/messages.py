@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 from geometry_msgs.msg import Pose
-from katana_common.conversions import time_msg, to_seconds
+from katana_common.messages import time_msg, to_seconds
 from katana_description import models as m
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.msg import Block, BlockArray

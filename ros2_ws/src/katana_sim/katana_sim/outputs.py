@@ -8,7 +8,7 @@ from __future__ import annotations
 import threading
 import time
 
-from katana_common.conversions import time_msg
+from katana_common.messages import time_msg
 from katana_common.qos import CLOCK_QOS, JOINT_STATE_QOS, SENSOR_QOS, STATE_QOS
 from katana_interfaces.msg import BlockArray
 from rosgraph_msgs.msg import Clock

@@ -20,6 +20,7 @@ import time
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.node_runner import run_node
 from katana_common.params import ParameterError, declare_parameters
+from katana_description import arm_contract as ac
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.srv import ResetWorld
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -28,7 +29,6 @@ from rclpy.node import Node
 
 from katana_sim import messages as msgs
 from katana_sim.core import ConfigError, PhysicsSim, pacing
-from katana_sim.core import controllers as ctl
 from katana_sim.outputs import FAST_WALL_CAP_S, SimOutputs
 from katana_sim.sim_params import PARAMS, cross_check, sim_config
 
@@ -170,7 +170,7 @@ class SimNode(Node):
                 handle = self.world.start_trajectory(goal)
         except (TypeError, ValueError) as exc:  # values no contract rule expected
             handle = None
-            result.error_code, result.error_string = ctl.INVALID_GOAL, f"bad goal: {exc}"
+            result.error_code, result.error_string = ac.INVALID_GOAL, f"bad goal: {exc}"
         if handle is None or handle.outcome.done:
             if handle is not None:
                 result.error_code = handle.outcome.error_code
@@ -190,13 +190,13 @@ class SimNode(Node):
                 self.world.cancel_trajectory(state, only=handle)
             result.error_string = state
             if state == pacing.TIMEOUT:
-                result.error_code = ctl.GOAL_TOLERANCE_VIOLATED
+                result.error_code = ac.GOAL_TOLERANCE_VIOLATED
                 result.error_string = "no outcome in time"
             self._end(goal_handle, False, canceled=state == pacing.CANCELED)
             return result
         out = handle.outcome
         result.error_code, result.error_string = out.error_code, out.message
-        self._end(goal_handle, out.status == ctl.SUCCEEDED)
+        self._end(goal_handle, out.status == ac.SUCCEEDED)
         return result
 
     def _execute_gripper(self, goal_handle):
@@ -221,7 +221,7 @@ class SimNode(Node):
             out = handle.outcome
         result.position, result.effort = out.position, out.effort
         result.stalled, result.reached_goal = out.stalled, out.reached_goal
-        self._end(goal_handle, state == pacing.DONE and out.status == ctl.SUCCEEDED,
+        self._end(goal_handle, state == pacing.DONE and out.status == ac.SUCCEEDED,
                   canceled=state == pacing.CANCELED)
         return result
 

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import math
-import threading
-import time
 
 import numpy as np
 import pytest
@@ -12,8 +10,8 @@ import rclpy
 from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
 from katana_common.action_client import ActionClient
-from katana_common.executor import MultiThreadedExecutor
 from katana_common.qos import JOINT_STATE_QOS, SENSOR_QOS, STATE_QOS
+from katana_common.testing import wait_until
 from katana_description import models as m
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.msg import BlockArray
@@ -21,63 +19,32 @@ from katana_interfaces.srv import ResetWorld
 from katana_sim.sim_node import SimNode
 from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 
-def wait_for(cond, timeout: float = 10.0):
-    deadline = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < deadline, "condition not met in time"
-        threading.Event().wait(0.005)
-    return cond()
-
-
 @pytest.fixture(scope="module")
-def graph():
-    ctx = Context()
-    rclpy.init(context=ctx)
-    sim = SimNode(context=ctx, parameter_overrides=[
-        Parameter("real_time_factor", value=0.0), Parameter("seed", value=5),
-        Parameter("camera_rate", value=20.0)])
-    probe = Node("sim_test_probe", context=ctx)
-    ex = MultiThreadedExecutor(num_threads=6, context=ctx)
-    ex.add_node(sim)
-    ex.add_node(probe)
-    stop = threading.Event()
-
-    def spin():
-        while not stop.is_set():
-            ex.spin_once(timeout_sec=0.05)
-
-    th = threading.Thread(target=spin, daemon=True)
-    th.start()
-    got: dict = {}
-    probe.create_subscription(Image, "camera/image_raw", lambda msg: got.update(image=msg),
-                              SENSOR_QOS)
-    probe.create_subscription(CameraInfo, "camera/camera_info", lambda msg: got.update(info=msg),
-                              SENSOR_QOS)
-    probe.create_subscription(JointState, "joint_states", lambda msg: got.update(joints=msg),
-                              JOINT_STATE_QOS)
-    probe.create_subscription(
-        BlockArray, "sim/ground_truth", lambda msg: got.update(truth=msg),
-        STATE_QOS)
-    arm = ActionClient(probe, FollowJointTrajectory, "arm_controller/follow_joint_trajectory")
-    grip = ActionClient(probe, GripperCommand, "gripper_controller/gripper_command")
-    reset = probe.create_client(ResetWorld, "sim_node/reset_world")
-    yield {"sim": sim, "probe": probe, "got": got, "arm": arm, "grip": grip, "reset": reset}
-    stop.set()
-    th.join(timeout=5)
-    ex.shutdown(timeout_sec=5)
-    sim.destroy_node()
-    probe.destroy_node()
-    rclpy.try_shutdown(context=ctx)
+def graph(sim_graph):
+    with sim_graph("sim_test_probe", real_time_factor=0.0, seed=5, camera_rate=20.0) as (
+            sim, probe):
+        got: dict = {}
+        probe.create_subscription(Image, "camera/image_raw", lambda msg: got.update(image=msg),
+                                  SENSOR_QOS)
+        probe.create_subscription(CameraInfo, "camera/camera_info",
+                                  lambda msg: got.update(info=msg), SENSOR_QOS)
+        probe.create_subscription(JointState, "joint_states", lambda msg: got.update(joints=msg),
+                                  JOINT_STATE_QOS)
+        probe.create_subscription(BlockArray, "sim/ground_truth",
+                                  lambda msg: got.update(truth=msg), STATE_QOS)
+        arm = ActionClient(probe, FollowJointTrajectory, "arm_controller/follow_joint_trajectory")
+        grip = ActionClient(probe, GripperCommand, "gripper_controller/gripper_command")
+        reset = probe.create_client(ResetWorld, "sim_node/reset_world")
+        yield {"sim": sim, "probe": probe, "got": got, "arm": arm, "grip": grip, "reset": reset}
 
 
 def _result(future, timeout: float = 20.0):
-    wait_for(future.done, timeout)
+    assert wait_until(future.done, timeout), "no result in time"
     return future.result()
 
 
@@ -101,7 +68,7 @@ def _traj(names, points, times) -> FollowJointTrajectory.Goal:
 
 def test_camera_images_and_info(graph):
     got = graph["got"]
-    wait_for(lambda: "image" in got and "info" in got and "truth" in got)
+    assert wait_until(lambda: "image" in got and "info" in got and "truth" in got)
     img, info = got["image"], got["info"]
     assert (img.width, img.height, img.encoding, img.step) == (640, 480, "rgb8", 640 * 3)
     assert img.header.frame_id == "camera_optical_frame" == info.header.frame_id
@@ -119,7 +86,7 @@ def test_camera_images_and_info(graph):
 
 def test_joint_states_carry_seven_joints(graph):
     got = graph["got"]
-    wait_for(lambda: "joints" in got)
+    assert wait_until(lambda: "joints" in got)
     js = got["joints"]
     assert list(js.name) == list(m.ALL_JOINTS)
     assert len(js.position) == len(js.velocity) == 7
@@ -131,7 +98,7 @@ def test_trajectory_and_gripper_actions(graph):
     target = [0.3, 1.2, -1.5, 1.2, 0.4]
     res = _send(graph["arm"], _traj(list(m.ARM_JOINTS), [target], [4.0]))
     assert res.result.error_code == 0, res.result.error_string
-    wait_for(lambda: np.allclose(got["joints"].position[:5], target, atol=0.01))
+    assert wait_until(lambda: np.allclose(got["joints"].position[:5], target, atol=0.01))
     res = _send(graph["grip"], GripperCommand.Goal())  # position 0, default effort
     assert res.result.reached_goal and abs(res.result.position) < 0.011
 
@@ -166,12 +133,12 @@ def test_bad_gripper_goal_is_refused(graph):
 
 def test_reset_world_scatters_again(graph):
     got = graph["got"]
-    wait_for(lambda: "truth" in got)
+    assert wait_until(lambda: "truth" in got)
     cli = graph["reset"]
     assert cli.wait_for_service(timeout_sec=5.0)
     resp = _result(cli.call_async(ResetWorld.Request(seed=42)))
     assert resp.success and "seed 42" in resp.message
-    wait_for(lambda: graph["sim"].world.last_seed == 42)
+    assert wait_until(lambda: graph["sim"].world.last_seed == 42)
     sim = graph["sim"]
     first = [(b.pose.position.x, b.pose.position.y) for b in sim.ground_truth_msg().blocks]
     resp = _result(cli.call_async(ResetWorld.Request(seed=-1)))
@@ -206,7 +173,7 @@ def test_invalid_parameters_stop_the_node_naming_them(param, value):
 
 def test_stamps_are_simulated_time(graph):
     got, sim = graph["got"], graph["sim"]
-    wait_for(lambda: "joints" in got and "truth" in got)
+    assert wait_until(lambda: "joints" in got and "truth" in got)
     for msg in (got["joints"], got["truth"]):
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         assert 0.0 <= stamp <= sim.world.time + 1e-6  # sim time since start-up, not the epoch

@@ -10,6 +10,7 @@ import pybullet as p
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from katana_description import arm_contract as ac
 from katana_description import models as m
 from katana_sim.core import CameraModel, ConfigError, PhysicsSim, SimConfig, TrajectoryGoal
 from katana_sim.core import controllers as ctl
@@ -138,7 +139,7 @@ def test_trajectory_reaches_target_within_tolerance_and_speed_limits(world):
         world.step(4)
         _, vel, _ = world.joint_state()
         vmax = np.maximum(vmax, np.abs(vel[:5]))
-    assert h.outcome.status == ctl.SUCCEEDED, h.outcome
+    assert h.outcome.status == ac.SUCCEEDED, h.outcome
     q = np.array([world.joint_positions()[n] for n in m.ARM_JOINTS])
     assert np.all(np.abs(q - target) <= 0.005)
     assert np.all(vmax <= kin_speed() * 1.05), (vmax, kin_speed())
@@ -152,12 +153,12 @@ def kin_speed() -> np.ndarray:
 @pytest.mark.parametrize(
     ("names", "points", "times", "code", "why"),
     [
-        (["katana_motor1_pan_joint"], [[math.nan]], [1.0], ctl.INVALID_GOAL, "not finite"),
-        (["bogus_joint"], [[0.0]], [1.0], ctl.INVALID_JOINTS, "unknown"),
-        (["katana_r_finger_joint"], [[0.0]], [1.0], ctl.INVALID_JOINTS, "non-arm"),
-        (["katana_motor2_lift_joint"], [[3.0]], [5.0], ctl.INVALID_GOAL, "outside"),
-        (["katana_motor1_pan_joint"], [[2.5]], [0.5], ctl.INVALID_GOAL, "rad/s"),
-        (["katana_motor1_pan_joint"], [[0.0], [0.1]], [2.0, 1.0], ctl.INVALID_GOAL, "later than"),
+        (["katana_motor1_pan_joint"], [[math.nan]], [1.0], ac.INVALID_GOAL, "not finite"),
+        (["bogus_joint"], [[0.0]], [1.0], ac.INVALID_JOINTS, "unknown"),
+        (["katana_r_finger_joint"], [[0.0]], [1.0], ac.INVALID_JOINTS, "non-arm"),
+        (["katana_motor2_lift_joint"], [[3.0]], [5.0], ac.INVALID_GOAL, "outside"),
+        (["katana_motor1_pan_joint"], [[2.5]], [0.5], ac.INVALID_GOAL, "rad/s"),
+        (["katana_motor1_pan_joint"], [[0.0], [0.1]], [2.0, 1.0], ac.INVALID_GOAL, "later than"),
     ],
 )
 def test_bad_trajectories_are_refused_with_a_reason(world, names, points, times, code, why):
@@ -281,7 +282,7 @@ def test_the_sampled_trajectory_is_the_cubic_hermite_spline_through_the_goal(gap
     start = rng.uniform(-1.0, 1.0, 5)
     goal = TrajectoryGoal(list(m.ARM_JOINTS), times.tolist(), points.tolist(),
                           vels.tolist() if vels is not None else None)
-    follower = ctl.TrajectoryFollower(goal, ctl.ArmContract(), 0.0, start)  # as PhysicsSim
+    follower = ctl.TrajectoryFollower(goal, ac.ArmContract(), 0.0, start)  # as PhysicsSim
     knots = np.concatenate([[0.0], times])
     q = np.vstack([start, points])
     v = np.vstack([np.zeros(5), vels if vels is not None else np.zeros_like(points)])

@@ -54,14 +54,18 @@ def choose_block_to_move(
     placement_xy: tuple[float, float],
     target_stack: Sequence[str],
     reachable=lambda block: True,
+    from_stacks_first: bool = False,
 ) -> BlockView | None:
     """The accessible upright top block furthest from the placement, never one of the target
-    stack.
+    stack; with `from_stacks_first`, the top of the tallest stack before any loose block.
 
     Furthest first "avoids interference with the blocks at the selected placement location".
     Ties go to the lower block id, so the choice is deterministic. A block on its side stays
     where it lies: placed, it would stand on its side and measure the fall of a block the
-    paper never stacks.
+    paper never stacks. A placement on the table starts a new stack: made with a loose block
+    it leaves every stack as it was (on the sim the loop moved one block from the table to the
+    table 83 times beside a three-stack it could not place on), made with a stack's top block
+    it lowers that stack, which is what a plan back to the table is for.
     """
     excluded = set(target_stack)
     candidates = [b for b in blocks
@@ -69,7 +73,8 @@ def choose_block_to_move(
     if not candidates:
         return None
     px, py = placement_xy
-    return max(candidates, key=lambda b: (math.hypot(b.x - px, b.y - py), _neg(b.id)))
+    return max(candidates, key=lambda b: (b.level if from_stacks_first else 0,
+                                          math.hypot(b.x - px, b.y - py), _neg(b.id)))
 
 
 def _neg(text: str) -> tuple[int, ...]:

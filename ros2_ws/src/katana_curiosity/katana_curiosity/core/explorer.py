@@ -3,7 +3,8 @@
 A strategy looks at the setting and returns a choice: an instance to query directly, or a
 planned (state, action) pair. The explorer executes it in the world, learns from the label
 (planned outcomes are learned from too: the paper's agent "keeps on refining the learned model"
-while it exploits it) and reports what happened. A new strategy is one small class.
+while it exploits it) and reports what happened. A new strategy is one small class, registered
+by name in core.strategies.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import numpy as np
 
 from .environment import Environment, Outcome, PlacementUnavailable, Setting, ShuffledSetting
 from .planner import Planner, RewardTable
-from .predictors import PredictorBank
+from .predictors import GAMMA, PredictorBank
 
 QUERY, PLAN, RANDOM = 0, 1, 2
 MODE_NAMES = {QUERY: "query", PLAN: "plan", RANDOM: "random"}
@@ -47,9 +48,13 @@ class Step:
 
 class NoRouteToUnknown(PlacementUnavailable):
     """A planned choice not worth making: its outcome is known and it leads to no unknown pair,
-    so the setting should change instead (the robot loop resets it)."""
+    so the setting should change instead (the robot loop resets it). `reason` says why:
+    no_route_to_unknown (the model sees no unknown pair beyond it) or plan_changed_nothing (the
+    same plan in the same offer left the offer as it was)."""
 
-    reason = "no_route_to_unknown"
+    def __init__(self, message: str, reason: str = "no_route_to_unknown") -> None:
+        super().__init__(message)
+        self.reason = reason
 
 
 def first_unknown(bank: PredictorBank, setting: Setting | ShuffledSetting) -> Choice | None:
@@ -66,7 +71,7 @@ class Strategy:
 
     name: ClassVar[str] = ""
 
-    def __init__(self, bank: PredictorBank, top: int, gamma: float = 0.95, seed: int = 0) -> None:
+    def __init__(self, bank: PredictorBank, top: int, gamma: float = GAMMA, seed: int = 0) -> None:
         self.bank = bank
         self.top = top
         self.gamma = gamma
@@ -90,7 +95,7 @@ class PlanningStrategy(Strategy):
         self,
         bank: PredictorBank,
         top: int,
-        gamma: float = 0.95,
+        gamma: float = GAMMA,
         seed: int = 0,
         feasible: np.ndarray | None = None,
     ) -> None:
@@ -183,29 +188,6 @@ class RandomChoice(Strategy):
         return Choice(state, action, RANDOM, index)
 
 
-STRATEGIES: dict[str, type[Strategy]] = {cls.name: cls for cls in (Q1, Q10, Conf, RandomChoice)}
-
-
-def make_strategy(
-    name: str,
-    bank: PredictorBank,
-    top: int,
-    gamma: float = 0.95,
-    seed: int = 0,
-    feasible: np.ndarray | None = None,
-) -> Strategy:
-    """A strategy by name; `feasible` (states x actions) tells planners what can ever occur."""
-    try:
-        cls = STRATEGIES[name]
-    except KeyError:
-        raise ValueError(
-            f"unknown method {name!r}: choose from {', '.join(sorted(STRATEGIES))}"
-        ) from None
-    if issubclass(cls, PlanningStrategy):
-        return cls(bank, top, gamma, seed, feasible)
-    return cls(bank, top, gamma, seed)
-
-
 class Explorer:
     """Algorithm 1 in a loop: observe, query or plan, execute, learn."""
 
@@ -216,25 +198,38 @@ class Explorer:
         strategy: Strategy,
         max_alternatives: int = 20,
         record_weights: bool = False,
-        worth_making: Callable[[Strategy, Choice], bool] | None = None,
+        worth_making: Callable[[Strategy, Choice], str | None] | None = None,
+        on_setting: Callable[[Setting | ShuffledSetting], None] | None = None,
+        place_planned: Callable[[Setting | ShuffledSetting, Choice], Choice] | None = None,
     ) -> None:
-        """worth_making: asked before a planned choice is executed; False raises
-        NoRouteToUnknown instead (the robot's "no experiment wasted"; None: always make it)."""
+        """The robot's hooks (None: the abstract world's behaviour):
+        worth_making(strategy, choice): asked before a planned choice is executed; a reason
+        code raises NoRouteToUnknown with it instead ("no experiment wasted"), None makes it.
+        on_setting(setting): told of every observed setting before a choice is made.
+        place_planned(setting, choice): which instance of a planned pair to make."""
         self.world, self.bank, self.strategy = world, bank, strategy
         self.max_alternatives = max_alternatives
         self.record_weights = record_weights
         self.worth_making = worth_making
+        self.on_setting = on_setting
+        self.place_planned = place_planned
         self.steps = 0
 
     def step(self) -> Step:
         setting = self.world.observe()
         if len(setting) == 0:
             raise PlacementUnavailable("the setting offers no instance")
+        if self.on_setting is not None:
+            self.on_setting(setting)
         choice = self.strategy.choose(setting, self.steps)
-        if (choice.mode == PLAN and self.worth_making is not None
-                and not self.worth_making(self.strategy, choice)):
+        if choice.mode == PLAN and self.place_planned is not None:
+            choice = self.place_planned(setting, choice)
+        refusal = (self.worth_making(self.strategy, choice)
+                   if choice.mode == PLAN and self.worth_making is not None else None)
+        if refusal:
             raise NoRouteToUnknown(f"the planned placement on height {choice.state}, action "
-                                   f"{choice.action + 1} is known and leads to no unknown pair")
+                                   f"{choice.action + 1} is not worth making ({refusal})",
+                                   refusal)
         (label, record), choice = self._execute(setting, choice)
         s, a = choice.state, choice.action
         margin, chi = float(self.bank.margin[s, a]), float(self.bank.chi[s, a])
@@ -267,7 +262,3 @@ class Explorer:
         raise PlacementUnavailable(
             f"no placement realises ({choice.state}, {choice.action}) or any alternative"
         )
-
-
-# The related-work baselines (lp, variance, rmax, egreedy) register themselves in STRATEGIES.
-from . import strategies_baselines  # noqa: E402, F401

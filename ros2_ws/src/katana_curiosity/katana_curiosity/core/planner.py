@@ -20,7 +20,7 @@ from typing import Protocol
 
 import numpy as np
 
-from .predictors import PredictorBank
+from .predictors import GAMMA, PredictorBank
 
 # Values closer than this are ties. Floating-point noise (a BLAS kernel summing two identical
 # rows in different orders) must not decide between equally good actions or heights; ties go to
@@ -39,7 +39,7 @@ class HeightMDP:
 
     transitions: np.ndarray
     rewards: np.ndarray
-    gamma: float = 0.95
+    gamma: float = GAMMA
 
     @property
     def n_states(self) -> int:
@@ -107,7 +107,7 @@ def phantom_rewards(
 
 
 def build_mdp(
-    bank: PredictorBank, top: int, gamma: float = 0.95, reward: str = "query"
+    bank: PredictorBank, top: int, gamma: float = GAMMA, reward: str = "query"
 ) -> HeightMDP:
     return HeightMDP(transition_model(bank, top), phantom_rewards(bank, top, reward), gamma)
 
@@ -271,7 +271,7 @@ class Planner:
         self,
         bank: PredictorBank,
         top: int,
-        gamma: float = 0.95,
+        gamma: float = GAMMA,
         reward: str | RewardTable = "query",
         basis: Basis | None = None,
         feasible: np.ndarray | None = None,
@@ -301,6 +301,21 @@ class Planner:
         self.calls = 0
         self._mdp: HeightMDP | None = None
         self._seen = np.full(top + 1, -1, dtype=np.int64)
+
+    def set_feasible(self, feasible: np.ndarray) -> None:
+        """Plan with a new table of what can occur (the rows whose entries changed get their
+        phantom rewards recomputed at the next solve)."""
+        feasible = np.asarray(feasible, dtype=bool).copy()
+        feasible[self.top] = True
+        if self.feasible is None or feasible.shape != self.feasible.shape:
+            raise ValueError("set_feasible needs a planner made with a feasible table")
+        if not feasible.any(axis=1).all():
+            raise ValueError("every state needs at least one feasible action")
+        changed = np.flatnonzero((feasible != self.feasible).any(axis=1))
+        self._seen[changed] = -1
+        self.feasible = feasible
+        self.policy = np.where(feasible[np.arange(self.top + 1), self.policy], self.policy,
+                               feasible.argmax(axis=1))
 
     def solve(self) -> np.ndarray:
         """Re-plan on the current model; only the MDP rows of heights that changed are rebuilt."""

@@ -39,6 +39,8 @@ def exploration_horizon(examples: np.ndarray | int) -> np.ndarray | float:
 ALPHA = 1.0
 THETA_ABSTRACT = 0.01
 THETA_ROBOT = 0.1
+#: The discount factor of the plan, as the paper's section 3 states it: gamma = 0.95.
+GAMMA = 0.95
 
 # Called by PredictorBank.update for every learned example: (state, action, label, margin before).
 UpdateListener = Callable[[int, int, float, float], None]

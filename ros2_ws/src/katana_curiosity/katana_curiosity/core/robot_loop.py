@@ -13,6 +13,13 @@ Policy (the paper's robot had a person for this; here it is explicit):
   only if it leads towards an unknown pair (`leads_towards_unknown`); otherwise the setting
   is changed (reset) instead, at most `setting_changes` times in a row before the plan is
   followed anyway (a setting that no reset improves must not stop the run).
+- A known plan that left the offer of (height, action) pairs as it was is not made again in
+  that offer (`progress.FutilePlans`): the setting is changed instead (within the same
+  `setting_changes` bound), since making it again can only lead back to the same offer.
+- A pair never offered in `unrealisable_after` logged settings offering its height is one the
+  arm does not realise (`progress.Realisability`): the planner puts no phantom reward on it.
+- When no pair the arm can realise is unknown, the loop says so once and, if
+  `stop_when_all_known`, ends: the paper's agent "knows when to stop its planning efforts".
 - Every wait watches `stop`, so `stop.set()` ends the loop at once.
 Choices depend only on the seed and on what the environment reports, never on wall time.
 """
@@ -29,9 +36,10 @@ from typing import Any, Protocol
 import numpy as np
 
 from .environment import Environment, PlacementUnavailable
-from .explorer import MODE_NAMES, Choice, Explorer, NoRouteToUnknown, Step, Strategy
+from .explorer import MODE_NAMES, PLAN, Choice, Explorer, NoRouteToUnknown, Step, Strategy
 from .planner import clip_margin
 from .predictors import PredictorBank, QueryRule, one_hot_with_bias
+from .progress import FutilePlans, Offer, Realisability, all_known, offer_of, unknown_offered
 from .run_record import ExperienceLog, ExperimentRecord, InstanceRecord
 
 
@@ -177,6 +185,12 @@ class RobotEnvironment(Environment, Protocol):
 
     def reset(self) -> str: ...
 
+    # optional: place_planned(setting, choice, target_height) -> choice, which instance of a
+    # planned pair to make; stack_heights() -> the heights of the stacks last observed
+
+
+#: why the loop changed the setting instead of making a planned placement (NoRouteToUnknown)
+SETTING_CHANGES = frozenset({"no_route_to_unknown", "plan_changed_nothing"})
 
 #: drops that leave the setting as it was: trying it again can only fail again
 STILL_SETTING_REASONS = frozenset({"no_usable_instance"})
@@ -190,6 +204,8 @@ class LoopPolicy:
     backoff_s: float = 0.2  # pause after a drop, times the drops in a row
     max_backoff_s: float = 2.0
     setting_changes: int = 3  # pointless plans answered by a reset, in a row (0: never)
+    stop_when_all_known: bool = True  # end the run once no pair the arm realises is unknown
+    unrealisable_after: int = 30  # settings offering a height without a pair (0: never)
 
 
 class RobotLoop:
@@ -217,13 +233,73 @@ class RobotLoop:
         self._table_only = 0
         self._setting_changes = 0  # in a row, since the last experiment
         self.done_this_session = 0
-        if policy.setting_changes:
-            explorer.worth_making = self._worth_making
+        self.futile = FutilePlans()
+        self._offer: Offer = frozenset()
+        self._scene: tuple = ()
+        self._unknown_offered = -1
+        self._resets_since_experiment = 0
+        self.all_known_at: int | None = None  # experiments made when nothing was left unknown
+        explorer.worth_making = self._worth_making
+        explorer.on_setting = self._on_setting
+        if hasattr(environment, "place_planned"):
+            explorer.place_planned = self._place_planned
+        planner = getattr(explorer.strategy, "planner", None)
+        self.realisability: Realisability | None = None
+        if planner is not None and planner.feasible is not None:
+            self.realisability = Realisability(planner.feasible, policy.unrealisable_after)
+            for record in log.records:  # what an uninterrupted run would have noted
+                self.realisability.note(frozenset((h, a - 1) for h, a in record.offer))
+            self._plan_on_realisable()
 
-    def _worth_making(self, strategy: Strategy, choice: Choice) -> bool:
-        if self._setting_changes >= self.policy.setting_changes:
-            return True  # resets did not help: follow the plan
-        return leads_towards_unknown(strategy, choice)
+    def _plan_on_realisable(self) -> None:
+        planner = getattr(self.explorer.strategy, "planner", None)  # a live strategy change
+        if planner is None or planner.feasible is None:
+            return
+        table = self.realisability.table
+        table[planner.top] = True
+        if not np.array_equal(table, planner.feasible):
+            planner.set_feasible(table)
+
+    def _on_setting(self, setting) -> None:
+        self._offer = offer_of(setting)
+        stacks = getattr(self.environment, "stack_heights", lambda: ())()
+        self._scene = (self._offer, tuple(stacks))
+        self._unknown_offered = unknown_offered(self.explorer.bank, self._offer)
+        if self.futile.observed(self._scene):
+            self.logger.info("the last planned placement left the setting as it was: it is not "
+                             "made again in this setting")
+
+    def _place_planned(self, setting, choice: Choice) -> Choice:
+        """The environment's choice of instance, towards the lowest height above the choice
+        where a pair the arm can realise is still unknown (the plan's next goal)."""
+        planner = getattr(self.explorer.strategy, "planner", None)
+        target = choice.state + 1
+        if planner is not None and planner.feasible is not None:
+            unknown = self.explorer.bank.unknown[: planner.top] & planner.feasible[: planner.top]
+            above = [h for h in range(choice.state + 1, planner.top) if unknown[h].any()]
+            target = above[0] if above else target
+        return self.environment.place_planned(setting, choice, target)
+
+    def _worth_making(self, strategy: Strategy, choice: Choice) -> str | None:
+        if not self.policy.setting_changes or self._setting_changes >= self.policy.setting_changes:
+            return None  # resets did not help (or are not wanted): follow the plan
+        if self.futile.is_futile(self._scene, choice.state, choice.action):
+            return "plan_changed_nothing"
+        return None if leads_towards_unknown(strategy, choice) else "no_route_to_unknown"
+
+    def _everything_known(self) -> bool:
+        """Whether no pair the arm can realise is unknown (said once, in the log)."""
+        planner = getattr(self.explorer.strategy, "planner", None)
+        if self.realisability is None or planner is None:
+            return False
+        if not all_known(self.explorer.bank, self.realisability.table, planner.top):
+            self.all_known_at = None
+            return False
+        if self.all_known_at is None:
+            self.all_known_at = len(self.log)
+            self.logger.info(f"every (height, action) pair the arm can realise is known after "
+                             f"{len(self.log)} experiments")
+        return True
 
     @property
     def finished_all(self) -> bool:
@@ -241,6 +317,9 @@ class RobotLoop:
         while not self.stop.is_set():
             if self.finished_all:
                 return f"done: {len(self.log)} experiments"
+            if self._everything_known() and self.policy.stop_when_all_known:
+                return (f"done: everything the arm can realise is known after {len(self.log)} "
+                        "experiments")
             try:
                 self.run_one()
                 failures = 0
@@ -249,7 +328,7 @@ class RobotLoop:
                 self.dropped[exc.reason] += 1
                 self.dropped_total[exc.reason] += 1
                 self.logger.info(f"changing the setting: {exc}")
-                self.maybe_reset(force=True, why="the plan leads to no unknown pair")
+                self.maybe_reset(force=True, why=exc.reason)
             except (PlacementUnavailable, ExperimentAborted, TimeoutError) as exc:
                 failures += 1
                 reason = drop_reason(exc)
@@ -278,7 +357,16 @@ class RobotLoop:
             self.log.append(record)  # OSError ends the loop: nothing may go unrecorded
         self.done_this_session += 1
         self._setting_changes = 0
+        self._resets_since_experiment = 0
         self.dropped.clear()
+        if self.realisability is not None:
+            self.realisability.note(self._offer)
+            self._plan_on_realisable()
+        if step.mode == PLAN and not self.explorer.bank.rule.is_query(
+                np.array(step.margin_before), np.array(step.chi_before)):
+            self.futile.made(self._scene, step.state, step.action)
+        else:
+            self.futile.forget_pending()
         self.environment.mark_scene_changed()
         self.on_experiment(record, step)
         # A scene that offers nothing but the table (a stack whose top is beyond reach and
@@ -310,6 +398,9 @@ class RobotLoop:
             stage_s={k: round(float(v), 4) for k, v in execution.stage_s.items()},
             dropped_before=dict(sorted(self.dropped.items())),
             wall_time=float(self.wall_clock()),
+            resets_before=self._resets_since_experiment,
+            unknown_offered=self._unknown_offered,
+            offer=[[int(h), int(a) + 1] for h, a in sorted(self._offer)],
         )
 
     def maybe_reset(self, force: bool = False, why: str = "repeated failures") -> None:
@@ -323,7 +414,9 @@ class RobotLoop:
             # the next observation must be of the new scene, not of whatever the memory had
             # folded in when the reset returned (that depended on thread timing)
             self.environment.mark_scene_changed()
+            self.futile.forget_pending()
             self.resets += 1
+            self._resets_since_experiment += 1
             self.logger.info(f"reset the world ({reason}): {message}")
         except (TimeoutError, ExperimentAborted) as exc:
             self.logger.warning(f"could not reset the world ({reason}): {exc}")

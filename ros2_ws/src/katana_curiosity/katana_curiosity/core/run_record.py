@@ -74,6 +74,9 @@ class ExperimentRecord:
     stage_s: dict[str, float] = field(default_factory=dict)  # wall seconds per stage
     dropped_before: dict[str, int] = field(default_factory=dict)  # attempts dropped, by reason
     wall_time: float = 0.0  # seconds since the epoch when it was logged
+    resets_before: int = 0  # world resets since the previous experiment
+    unknown_offered: int = -1  # offered (height, action) pairs still unknown; -1: not recorded
+    offer: list[list[int]] = field(default_factory=list)  # [height, 1-based action] pairs offered
 
     @property
     def action_index(self) -> int:
@@ -115,6 +118,9 @@ class ExperimentRecord:
             "stage_s": _float_map(data, "stage_s"),
             "dropped_before": _count_map(data, "dropped_before"),
             "wall_time": _float(data, "wall_time"),
+            "resets_before": _int(data, "resets_before", 0, default=0),
+            "unknown_offered": _int(data, "unknown_offered", -1, default=-1),
+            "offer": _pairs(data, "offer"),
         }
         if values["label"] not in (-1, 1):
             raise RecordError("label", f"{values['label']!r} is not +1 or -1")
@@ -135,6 +141,16 @@ def _int(data: Mapping, name: str, low: int | None = None, default: int | None =
     if low is not None and value < low:
         raise RecordError(name, f"{value!r} is below {low}")
     return value
+
+
+def _pairs(data: Mapping, name: str) -> list[list[int]]:
+    """[height >= 0, action >= 1] pairs."""
+    pairs = []
+    for item in _list(data, name):
+        if not isinstance(item, list) or len(item) != 2:
+            raise RecordError(name, f"{item!r} is not a [height, action] pair")
+        pairs.append([_int({name: item[0]}, name, 0), _int({name: item[1]}, name, 1)])
+    return pairs
 
 
 def _float(data: Mapping, name: str) -> float:

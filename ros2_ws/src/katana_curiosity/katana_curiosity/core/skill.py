@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .planner import HeightMDP, lspi, transition_model
+from .predictors import GAMMA
 from .robot_loop import feasible_actions
 
 
@@ -74,7 +75,7 @@ class StackingSkill:
         self,
         model: LearnedModel,
         target_height: int,
-        gamma: float = 0.95,
+        gamma: float = GAMMA,
         table_action: int = 1,
     ) -> None:
         if not 1 <= target_height <= model.margin.shape[0]:

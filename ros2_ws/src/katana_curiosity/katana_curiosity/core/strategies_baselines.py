@@ -10,7 +10,7 @@
 - egreedy: epsilon-greedy: the planned (phantom query reward) choice, or with probability
   `epsilon` a uniformly random instance of the setting.
 
-Importing core.explorer registers them (see the end of that module); `--methods` selects them.
+core.strategies registers them beside the paper's methods; `--strategies` selects them.
 """
 
 from __future__ import annotations
@@ -20,11 +20,20 @@ from typing import ClassVar
 import numpy as np
 
 from .environment import Setting, ShuffledSetting
-from .explorer import QUERY, RANDOM, STRATEGIES, Choice, PlanningStrategy
+from .explorer import QUERY, RANDOM, Choice, PlanningStrategy
 from .planner import RewardTable, clip_margin
 
 
-class LearningProgress(PlanningStrategy):
+class ReplannedEveryStep(PlanningStrategy):
+    """Solves the plan anew every step and follows it (no query condition of its own): lp and
+    variance, which differ only in their phantom reward."""
+
+    def choose(self, setting: Setting | ShuffledSetting, step: int) -> Choice:
+        self.planner.solve()
+        return self.planned(setting)
+
+
+class LearningProgress(ReplannedEveryStep):
     """IAC-style learning progress per (height, action) pair, planned on as phantom reward.
 
     The error of an example is |label - clipped margin| / 2 in [0, 1], measured before the
@@ -62,21 +71,13 @@ class LearningProgress(PlanningStrategy):
         reward[self.bank.slot[rows] < 0] = 0.0  # nothing to learn where there is no predictor
         return reward
 
-    def choose(self, setting: Setting | ShuffledSetting, step: int) -> Choice:
-        self.planner.solve()
-        return self.planned(setting)
 
-
-class Variance(PlanningStrategy):
+class Variance(ReplannedEveryStep):
     """Predictive variance of the +-1 outcome, 1 - margin^2, as phantom reward; no query
     condition, re-planned every step."""
 
     name = "variance"
     reward = "variance"
-
-    def choose(self, setting: Setting | ShuffledSetting, step: int) -> Choice:
-        self.planner.solve()
-        return self.planned(setting)
 
 
 class RMax(PlanningStrategy):
@@ -132,4 +133,3 @@ class EpsilonGreedy(PlanningStrategy):
 
 
 BASELINES: tuple[type[PlanningStrategy], ...] = (LearningProgress, Variance, RMax, EpsilonGreedy)
-STRATEGIES.update({cls.name: cls for cls in BASELINES})

@@ -173,10 +173,6 @@ class EncoderModel:
         return GRIPPER_CLOSED_ENC + frac * (GRIPPER_OPEN_ENC - GRIPPER_CLOSED_ENC)
 
     @staticmethod
-    def gripper_limits() -> tuple[float, float]:
-        return GRIPPER_CLOSED_RAD, GRIPPER_OPEN_RAD
-
-    @staticmethod
     def gripper_speed_limit_enc() -> float:
         enc_per_rad = (GRIPPER_OPEN_ENC - GRIPPER_CLOSED_ENC) / (
             GRIPPER_OPEN_RAD - GRIPPER_CLOSED_RAD

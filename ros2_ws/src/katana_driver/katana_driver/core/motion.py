@@ -15,6 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from katana_description import arm_contract as ac
+from katana_description import gripper_contract as gc
 
 from . import protocol as p
 from .arm import ArmState, ArmWorker
@@ -177,20 +178,20 @@ def run_gripper(
     worker: ArmWorker,
     model: EncoderModel,
     contract: ac.ArmContract,
-    goal: ac.GripperGoal,
+    goal: gc.GripperGoal,
     arm_active: bool,
     cancelled: Callable[[], bool],
-    feedback: Callable[[ac.GripperOutcome], None],
+    feedback: Callable[[gc.GripperOutcome], None],
     stop: threading.Event,
-) -> ac.GripperOutcome:
+) -> gc.GripperOutcome:
     """Validate, command and watch one gripper goal."""
     state = worker.state
     position = state.positions[5] if state is not None else 0.0
-    verdict = ac.validate_gripper(goal, arm_active=arm_active)
+    verdict = gc.validate_gripper(goal, arm_active=arm_active)
     problem = verdict.error_string or ready_problem(worker)
     if problem:
-        return ac.GripperOutcome(ac.ABORTED, position, 0.0, False, False, problem)
-    judge = ac.GripperJudge(goal, position, contract)
+        return gc.GripperOutcome(ac.ABORTED, position, 0.0, False, False, problem)
+    judge = gc.GripperJudge(goal, position, contract)
     try:
         _send_gripper(worker, model, judge.goal, contract.gripper_tolerance_rad)
     except (TransportError, p.ControllerError, TimeoutError) as exc:
@@ -216,7 +217,7 @@ def run_gripper(
             return judge.end(ac.ABORTED, position, worker.collision_message or "collision")
         outcome = judge.check(state.stamp - start, position, state.velocities[5],
                               at_rest=state.status[5] != p.STATUS_MOVING)
-        feedback(outcome if outcome.done else ac.GripperOutcome(ac.RUNNING, position, judge.effort))
+        feedback(outcome if outcome.done else gc.GripperOutcome(ac.RUNNING, position, judge.effort))
         if outcome.done:
             return outcome
 

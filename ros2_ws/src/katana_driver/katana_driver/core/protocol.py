@@ -41,15 +41,6 @@ STATUS_MOVING = 24
 STATUS_COLLISION = 40
 STATUS_SPLINE_DONE = 88
 STATUS_INVALID = 128
-STATUS_NAMES = {
-    STATUS_OFF: "off",
-    STATUS_CALIBRATING: "calibrating",
-    STATUS_HOLDING: "holding",
-    STATUS_MOVING: "moving",
-    STATUS_COLLISION: "stopped by a collision",
-    STATUS_SPLINE_DONE: "spline finished",
-    STATUS_INVALID: "invalid",
-}
 
 # S sub-commands.
 SUB_SPEED_LIMIT = 3

@@ -166,6 +166,35 @@ def plan_trajectory(
     ``positions`` rows are joint angles in ARM_JOINTS order, at ``times_s`` from the start.
     Raises TrajectoryError naming the joint and the limit when the goal cannot be run.
     """
+    times, q, v = _checked_goal(times_s, positions, velocities)
+    enc, enc_per_tick = _encoder_knots(model, q, v)
+    start = np.asarray(start_encoders[:5], dtype=float)
+    ticks, enc, enc_per_tick = _from_start(model, start, times, enc, enc_per_tick,
+                                           min_segment_ticks)
+    curve, knot_ticks = _knot_curve(ticks, enc, enc_per_tick, min_segment_ticks)
+    bounds: list[int] = [knot_ticks[0]]
+    for a, b in zip(knot_ticks[:-1], knot_ticks[1:], strict=True):
+        n = math.ceil((b - a) / max_segment_ticks)
+        bounds += [a + round((b - a) * (i + 1) / n) for i in range(n)]
+    limits = [model.speed_limit_enc(j + 1) * speed_scale for j in range(5)]
+    deriv = curve.derivative()
+    segments: list[list[SplineSegment]] = []
+    prev = [int(round(e)) for e in start]
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        row = _segment_row(model, prev, curve(b), deriv(a), deriv(b), b - a, limits)
+        prev = [seg.target for seg in row]
+        segments.append(row)
+    return SplinePlan(
+        segments=segments, start_ticks=[b - bounds[0] for b in bounds[:-1]], model=model
+    )
+
+
+def _checked_goal(
+    times_s: Sequence[float],
+    positions: Sequence[Sequence[float]],
+    velocities: Sequence[Sequence[float]] | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """times, positions (points x 5) and velocities (or None) as arrays, checked."""
     times = np.asarray(times_s, dtype=float)
     q = np.asarray(positions, dtype=float)
     if times.ndim != 1 or len(times) == 0:
@@ -181,13 +210,18 @@ def plan_trajectory(
         v = np.asarray(velocities, dtype=float)
         if v.shape != q.shape or not np.all(np.isfinite(v)):
             raise TrajectoryError("velocities must be finite and match the positions")
+    return times, q, v
 
-    # Knots in encoder space, checked against the ranges.
+
+def _encoder_knots(
+    model: EncoderModel, q: np.ndarray, v: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The knots in encoder space (checked against the ranges) and their slopes per tick."""
     enc = np.empty_like(q)
     for j in range(5):
         lo, hi = model.encoder_range(j + 1)
         lo_rad, hi_rad = model.joint_limits(j + 1)
-        for k in range(len(times)):
+        for k in range(len(q)):
             e = model.angle_to_encoder(j + 1, q[k, j])
             if not lo - LIMIT_MARGIN_ENC <= e <= hi + LIMIT_MARGIN_ENC:
                 raise TrajectoryError(
@@ -198,10 +232,20 @@ def plan_trajectory(
     enc_per_tick = None
     if v is not None:
         enc_per_tick = np.array(
-            [[model.speed_to_encoder(j + 1, v[k, j]) for j in range(5)] for k in range(len(times))]
+            [[model.speed_to_encoder(j + 1, v[k, j]) for j in range(5)] for k in range(len(q))]
         )
+    return enc, enc_per_tick
 
-    start = np.asarray(start_encoders[:5], dtype=float)
+
+def _from_start(
+    model: EncoderModel,
+    start: np.ndarray,
+    times: np.ndarray,
+    enc: np.ndarray,
+    enc_per_tick: np.ndarray | None,
+    min_segment_ticks: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Knot ticks, encoders and slopes starting where the arm is, at rest at both ends."""
     ticks = np.round(times / TICK_S)
     if ticks[0] <= 0.0:  # a point at t=0 stands for the current position
         gap = [
@@ -228,53 +272,53 @@ def plan_trajectory(
         enc_per_tick = None
     if np.any(np.diff(ticks) <= 0.0):
         raise TrajectoryError("trajectory points closer than 10 ms apart")
-
     if enc_per_tick is None:
         enc_per_tick = np.zeros_like(enc)
     enc_per_tick[0] = 0.0
     enc_per_tick[-1] = 0.0
-    curve = CubicHermiteSpline(ticks, enc, enc_per_tick, axis=0)
+    return ticks, enc, enc_per_tick
 
+
+def _knot_curve(
+    ticks: np.ndarray, enc: np.ndarray, enc_per_tick: np.ndarray, min_segment_ticks: int
+) -> tuple[CubicHermiteSpline, list[int]]:
+    """The Hermite curve through the knots and the knots kept (at least min_segment_ticks
+    apart; a goal shorter than that is slowed down to it)."""
+    curve = CubicHermiteSpline(ticks, enc, enc_per_tick, axis=0)
     keep = _select_knots(ticks, min_segment_ticks)
     knot_ticks = [int(ticks[i]) for i in keep]
     if knot_ticks[-1] - knot_ticks[0] < min_segment_ticks:  # a very short goal: slow it down
         stretch = min_segment_ticks / max(knot_ticks[-1] - knot_ticks[0], 1)
         scaled = CubicHermiteSpline(ticks * stretch, enc, enc_per_tick / stretch, axis=0)
         curve, knot_ticks = scaled, [0, min_segment_ticks]
+    return curve, knot_ticks
 
-    bounds: list[int] = [knot_ticks[0]]
-    for a, b in zip(knot_ticks[:-1], knot_ticks[1:], strict=True):
-        n = math.ceil((b - a) / max_segment_ticks)
-        bounds += [a + round((b - a) * (i + 1) / n) for i in range(n)]
 
-    limits = [model.speed_limit_enc(j + 1) * speed_scale for j in range(5)]
-    deriv = curve.derivative()
-    segments: list[list[SplineSegment]] = []
-    prev = [int(round(e)) for e in start]
-    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-        e1 = curve(b)
-        v0, v1 = deriv(a), deriv(b)
-        row = []
-        for j in range(5):
-            ticks_j = b - a
-            c = hermite_coefficients(prev[j], float(e1[j]), float(v0[j]), float(v1[j]), ticks_j)
-            speed = cubic_speed_max(c[1], c[2], c[3], ticks_j)
-            if speed > limits[j] * (1.0 + 1e-6) + 1e-9:
-                per_rad = abs(model.speed_to_encoder(j + 1, 1.0))
-                raise TrajectoryError(
-                    f"{ARM_JOINTS[j]} would move at {speed / per_rad:.3f} rad/s, above its "
-                    f"limit of {limits[j] / per_rad:.3f} rad/s; give the trajectory more time"
-                )
-            lo, hi = model.encoder_range(j + 1)
-            low, high = cubic_extremes(c, ticks_j)
-            if low < lo - LIMIT_MARGIN_ENC or high > hi + LIMIT_MARGIN_ENC:
-                raise TrajectoryError(
-                    f"{ARM_JOINTS[j]} would overshoot its limits between trajectory points"
-                )
-            seg = quantize(c, float(e1[j]), ticks_j)
-            row.append(seg)
-            prev[j] = seg.target
-        segments.append(row)
-    return SplinePlan(
-        segments=segments, start_ticks=[b - bounds[0] for b in bounds[:-1]], model=model
-    )
+def _segment_row(
+    model: EncoderModel,
+    prev: Sequence[int],
+    e1: np.ndarray,
+    v0: np.ndarray,
+    v1: np.ndarray,
+    ticks: int,
+    limits: Sequence[float],
+) -> list[SplineSegment]:
+    """One segment per motor from ``prev`` to ``e1``, checked against speed and range."""
+    row = []
+    for j in range(5):
+        c = hermite_coefficients(prev[j], float(e1[j]), float(v0[j]), float(v1[j]), ticks)
+        speed = cubic_speed_max(c[1], c[2], c[3], ticks)
+        if speed > limits[j] * (1.0 + 1e-6) + 1e-9:
+            per_rad = abs(model.speed_to_encoder(j + 1, 1.0))
+            raise TrajectoryError(
+                f"{ARM_JOINTS[j]} would move at {speed / per_rad:.3f} rad/s, above its "
+                f"limit of {limits[j] / per_rad:.3f} rad/s; give the trajectory more time"
+            )
+        lo, hi = model.encoder_range(j + 1)
+        low, high = cubic_extremes(c, ticks)
+        if low < lo - LIMIT_MARGIN_ENC or high > hi + LIMIT_MARGIN_ENC:
+            raise TrajectoryError(
+                f"{ARM_JOINTS[j]} would overshoot its limits between trajectory points"
+            )
+        row.append(quantize(c, float(e1[j]), ticks))
+    return row

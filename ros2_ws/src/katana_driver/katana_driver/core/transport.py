@@ -54,11 +54,9 @@ class NoReply(TransportError):
 
 @dataclass
 class LinkStats:
-    requests: int = 0
     retries: int = 0
     timeouts: int = 0
     crc_errors: int = 0
-    controller_errors: int = 0
 
 
 class Transport(ABC):
@@ -74,6 +72,7 @@ class Transport(ABC):
         self.stats = LinkStats()
         self._lock = threading.Lock()
         self._dirty = False  # a request failed: late replies may still come
+        self._link = None  # the open socket or serial port; None while closed
 
     # -------------------------------------------------------------- link primitives
     @property
@@ -82,22 +81,54 @@ class Transport(ABC):
         """Where the link goes, for messages (``tcp 192.168.1.1:5566``)."""
 
     @property
-    @abstractmethod
-    def is_open(self) -> bool: ...
+    def is_open(self) -> bool:
+        return self._link is not None
 
-    @abstractmethod
     def open(self) -> None:
-        """Open the link; raises LinkDown with the reason when it cannot."""
+        """Open the link (closing an open one first); raises LinkDown with the reason when it
+        cannot."""
+        self.close()
+        try:
+            self._link = self._connect()
+        except OSError as exc:  # pyserial's SerialException is an OSError too
+            raise LinkDown(f"{self.name}: cannot connect ({exc})") from exc
 
     @abstractmethod
-    def close(self) -> None: ...
+    def _connect(self):
+        """A new open link: a socket, or a serial port (raises OSError when it cannot)."""
+
+    def _open_link(self):
+        """The open link; OSError (the link is lost, for `_guarded`) when it was closed."""
+        if self._link is None:
+            raise OSError("the link is closed")
+        return self._link
+
+    def close(self) -> None:
+        link, self._link = self._link, None
+        if link is not None:
+            try:
+                link.close()
+            except OSError:
+                pass
 
     @abstractmethod
-    def _write(self, data: bytes) -> None: ...
+    def _write(self, data: bytes) -> None:
+        """All of ``data``; raises OSError when the link is closed or broken."""
 
     @abstractmethod
+    def _read_some(self, n: int, timeout: float) -> bytes:
+        """At most ``n`` bytes, waiting at most ``timeout`` s for the first (b"": none came);
+        raises OSError when the link is closed or broken."""
+
     def _read_until(self, n: int, deadline: float) -> bytes:
         """Up to ``n`` bytes; fewer only when ``deadline`` (time.monotonic) passed."""
+        buf = bytearray()
+        while len(buf) < n:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0.0:
+                break
+            buf += self._read_some(n - len(buf), remaining)
+        return bytes(buf)
 
     def _resync(self) -> bool:
         """Send an echo and discard every byte up to its reply.
@@ -106,16 +137,7 @@ class Transport(ABC):
         earlier attempt is left to be taken for the next one (a quiet period cannot promise
         that: replies may be late by any amount).
         """
-        self._write(_ECHO_FRAME)
-        deadline = time.monotonic() + self.timeout * (self.retries + 1)
-        tail = b""
-        while True:
-            chunk = self._read_until(1, deadline)
-            if not chunk:
-                return False
-            tail = (tail + chunk)[-len(_ECHO_REPLY) :]
-            if tail == _ECHO_REPLY:
-                return True
+        return self._resync_collect() is not None
 
     # -------------------------------------------------------------- requests
     def request(self, payload: bytes, reply_len: int) -> bytes:
@@ -125,7 +147,6 @@ class Transport(ABC):
         with self._lock:
             if not self.is_open:
                 raise LinkDown(f"{self.name}: not connected")
-            self.stats.requests += 1
             problems: list[str] = []
             for attempt in range(self.retries + 1):
                 if attempt or self._dirty:
@@ -146,7 +167,6 @@ class Transport(ABC):
                 if data[0] == ERROR_BYTE:
                     data += self._guarded(self._read_until, 2, deadline)
                     if data == _ERROR_FRAME:
-                        self.stats.controller_errors += 1
                         raise self._fetch_error()
                 data += self._guarded(self._read_until, reply_len + 2 - len(data), deadline)
                 if len(data) < reply_len + 2:
@@ -173,7 +193,6 @@ class Transport(ABC):
         with self._lock:
             if not self.is_open:
                 raise LinkDown(f"{self.name}: not connected")
-            self.stats.requests += 1
             if self._dirty:
                 if not self._guarded(self._resync):
                     raise NoReply(f"{self.name}: the controller does not answer; '{letter}' "
@@ -185,7 +204,6 @@ class Transport(ABC):
             if data and data[0] == ERROR_BYTE:
                 data += self._guarded(self._read_until, 2, deadline)
                 if data == _ERROR_FRAME:
-                    self.stats.controller_errors += 1
                     raise self._fetch_error()
             if data:
                 data += self._guarded(self._read_until, reply_len + 2 - len(data), deadline)
@@ -203,7 +221,6 @@ class Transport(ABC):
                               "it; not re-sent")
             data += late
             if data[:3] == _ERROR_FRAME:
-                self.stats.controller_errors += 1
                 raise self._fetch_error()
             if len(data) >= reply_len + 2:
                 try:
@@ -267,147 +284,70 @@ class Transport(ABC):
 class TcpTransport(Transport):
     """Katana 400/450: TCP port 5566 on the controller (USB network interface)."""
 
-    def __init__(
-        self,
-        host: str = "192.168.1.1",
-        port: int = 5566,
-        timeout: float = 0.5,
-        retries: int = 3,
-        connect_timeout: float = 2.0,
-    ) -> None:
+    def __init__(self, host: str = "192.168.1.1", port: int = 5566, timeout: float = 0.5,
+                 retries: int = 3, connect_timeout: float = 2.0) -> None:
         super().__init__(timeout=timeout, retries=retries)
-        self.host = host
-        self.port = port
-        self.connect_timeout = connect_timeout
-        self._sock: socket.socket | None = None
+        self.host, self.port, self.connect_timeout = host, port, connect_timeout
 
     @property
     def name(self) -> str:
         return f"tcp {self.host}:{self.port}"
 
-    @property
-    def is_open(self) -> bool:
-        return self._sock is not None
-
-    def open(self) -> None:
-        self.close()
-        try:
-            sock = socket.create_connection((self.host, self.port), timeout=self.connect_timeout)
-        except OSError as exc:
-            raise LinkDown(f"{self.name}: cannot connect ({exc})") from exc
+    def _connect(self) -> socket.socket:
+        sock = socket.create_connection((self.host, self.port), timeout=self.connect_timeout)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self._sock = sock
-
-    def close(self) -> None:
-        sock, self._sock = self._sock, None
-        if sock is not None:
-            try:
-                sock.close()
-            except OSError:
-                pass
+        return sock
 
     def _write(self, data: bytes) -> None:
-        if self._sock is None:
-            raise OSError("socket closed")
-        self._sock.sendall(data)
+        self._open_link().sendall(data)
 
-    def _read_until(self, n: int, deadline: float) -> bytes:
-        sock = self._sock
-        if sock is None:
-            raise OSError("socket closed")
-        buf = bytearray()
-        while len(buf) < n:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0.0:
-                break
-            sock.settimeout(remaining)
-            try:
-                chunk = sock.recv(n - len(buf))
-            except TimeoutError:
-                break
-            if not chunk:
-                raise ConnectionResetError("the controller closed the connection")
-            buf += chunk
-        return bytes(buf)
+    def _read_some(self, n: int, timeout: float) -> bytes:
+        sock = self._open_link()
+        sock.settimeout(timeout)
+        try:
+            chunk = sock.recv(n)
+        except TimeoutError:
+            return b""
+        if not chunk:
+            raise ConnectionResetError("the controller closed the connection")
+        return chunk
 
 
 class SerialTransport(Transport):
     """Katana 300: RS-232 at 57600 baud, 8N1, no flow control (pyserial)."""
 
-    def __init__(
-        self,
-        device: str = "/dev/ttyUSB0",
-        baudrate: int = 57600,
-        timeout: float = 0.5,
-        retries: int = 3,
-    ) -> None:
+    def __init__(self, device: str = "/dev/ttyUSB0", baudrate: int = 57600, timeout: float = 0.5,
+                 retries: int = 3) -> None:
         super().__init__(timeout=timeout, retries=retries)
-        self.device = device
-        self.baudrate = baudrate
-        self._port = None
+        self.device, self.baudrate = device, baudrate
 
     @property
     def name(self) -> str:
         return f"serial {self.device}"
 
-    @property
-    def is_open(self) -> bool:
-        return self._port is not None
-
-    def open(self) -> None:
+    def _connect(self):
         import serial
 
-        self.close()
-        try:
-            self._port = serial.Serial(
-                self.device,
-                baudrate=self.baudrate,
-                bytesize=serial.EIGHTBITS,
-                parity=serial.PARITY_NONE,
-                stopbits=serial.STOPBITS_ONE,
-                timeout=self.timeout,
-                xonxoff=False,
-                rtscts=False,
-                dsrdtr=False,
-            )
-        except (OSError, serial.SerialException) as exc:
-            raise LinkDown(f"{self.name}: cannot open ({exc})") from exc
+        return serial.Serial(
+            self.device,
+            baudrate=self.baudrate,
+            bytesize=serial.EIGHTBITS,
+            parity=serial.PARITY_NONE,
+            stopbits=serial.STOPBITS_ONE,
+            timeout=self.timeout,
+            xonxoff=False,
+            rtscts=False,
+            dsrdtr=False,
+        )
 
-    def close(self) -> None:
-        port, self._port = self._port, None
-        if port is not None:
-            try:
-                port.close()
-            except OSError:
-                pass
-
+    # pyserial's SerialException is an OSError: `_guarded` takes it for a lost link
     def _write(self, data: bytes) -> None:
-        import serial
+        self._open_link().write(data)
 
-        if self._port is None:
-            raise OSError("serial port closed")
-        try:
-            self._port.write(data)
-        except serial.SerialException as exc:
-            raise OSError(str(exc)) from exc
-
-    def _read_until(self, n: int, deadline: float) -> bytes:
-        import serial
-
-        port = self._port
-        if port is None:
-            raise OSError("serial port closed")
-        buf = bytearray()
-        try:
-            while len(buf) < n:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0.0:
-                    break
-                port.timeout = remaining
-                buf += port.read(n - len(buf))
-        except serial.SerialException as exc:
-            raise OSError(str(exc)) from exc
-        return bytes(buf)
+    def _read_some(self, n: int, timeout: float) -> bytes:
+        port = self._open_link()
+        port.timeout = timeout
+        return port.read(n)
 
 
 def make_transport(

@@ -178,10 +178,3 @@ class KatanaKinematics:
         except Unreachable:
             return False
         return True
-
-
-def move_duration(q_from: Sequence[float], q_to: Sequence[float], speed_fraction: float = 0.8,
-                  min_time: float = 0.05) -> float:
-    """Seconds for a joint-space move whose fastest-moving joint runs at a fraction of its limit."""
-    dq = np.abs(np.asarray(q_to, float)[:5] - np.asarray(q_from, float)[:5])
-    return max(min_time, float(np.max(dq / (MAX_SPEED * speed_fraction))))

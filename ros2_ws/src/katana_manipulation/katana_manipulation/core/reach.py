@@ -5,11 +5,15 @@ straight down, every height of its vertical move there: for a place, from where 
 is released up to the lowest start of the descent; for a pick, from the grasp point up to where
 the open finger pads clear the block top. Both heights grow with the stack, so a taller stack
 is reachable over a narrower annulus. `pick_reach(level)` and `place_reach(height)` give that
-annulus (ROS-free, cached); the fovea (where to place) and the curiosity node (which block to
-move) use these instead of configured radii, so all of them agree with what the executor can do.
+annulus (ROS-free, cached); the fovea (where to place) and the curiosity and skill nodes (which
+block to move, which stack to build on) use these instead of configured radii, so all of them
+agree with what the executor can do.
 
-The clearances mirror the executor's planner (`PickPlaceParams` in pick_place.py): the tool
-point above the block centre when grasping and releasing, and the least approach clearance.
+The heights come from the planner's own settings, a `ReachGeometry` (`PickPlaceParams.geometry`:
+the tool point above the block centre when grasping and releasing, the least approach
+clearance, the highest start of a descent and the grid it is searched on). Every function takes
+one (default: the planner's defaults); the executor checks its goals with its own, and the nodes
+that offer placements pass the same parameters (katana_manipulation.reach_params).
 """
 
 from __future__ import annotations
@@ -21,17 +25,8 @@ from functools import lru_cache
 from katana_description import models as m
 
 from .kinematics import KatanaKinematics, Unreachable
+from .pick_place_types import DEFAULT_GEOMETRY, ReachGeometry
 
-#: tool point above the block centre when grasping (PickPlaceParams.grasp_offset), m
-GRASP_OFFSET_M = 0.003
-#: block bottom above its support when released (PickPlaceParams.release_clearance), m
-RELEASE_CLEARANCE_M = 0.002
-#: least clearance of a descent's start above the block (min_approach_clearance), m
-APPROACH_CLEARANCE_M = 0.008
-#: a descent starts at most this far above the grasp or release point (approach_height), m
-APPROACH_HEIGHT_M = 0.06
-#: the planner looks for a descent's start on a grid of this step, down from approach_height
-APPROACH_SEARCH_STEP_M = 0.004
 #: the radial envelope is kept this far inside the kinematic limit, m
 MARGIN_M = 0.002
 _SCAN_STEP_M = 0.002
@@ -104,37 +99,63 @@ def _band(model: str, z_low: float, z_high: float) -> ReachBand:
     return ReachBand(lo, hi) if hi > lo else EMPTY
 
 
-def _descent_start(z_end: float, lowest: float) -> float:
+def _descent_start(z_end: float, lowest: float, g: ReachGeometry) -> float | None:
     """The lowest descent start the planner can pick: on its grid down from approach_height
-    above `z_end`, and not below `lowest`."""
-    steps = math.floor((APPROACH_HEIGHT_M - (lowest - z_end)) / APPROACH_SEARCH_STEP_M + 1e-9)
-    return max(lowest, z_end + APPROACH_HEIGHT_M - max(steps, 0) * APPROACH_SEARCH_STEP_M)
+    above `z_end`, and not below `lowest`; None when approach_height leaves no room above
+    `lowest` (the planner then has no start at any radius)."""
+    if z_end + g.approach_height < lowest - 1e-9:
+        return None
+    steps = math.floor((g.approach_height - (lowest - z_end)) / g.approach_step + 1e-9)
+    return max(lowest, z_end + g.approach_height - max(steps, 0) * g.approach_step)
 
 
-@lru_cache(maxsize=64)
-def place_reach(height: int, block_height_m: float = m.BLOCK_SIZE[2],
-                model: str = m.DEFAULT_MODEL) -> ReachBand:
-    """Where a block can be put on a stack of `height` blocks (0: the table)."""
-    if height < 0:
-        raise ValueError(f"height must be >= 0, got {height}")
-    centre = (height + 0.5) * block_height_m
-    z_release = centre + GRASP_OFFSET_M + RELEASE_CLEARANCE_M
-    return _band(model, z_release, _descent_start(z_release, z_release + APPROACH_CLEARANCE_M))
+def _vertical_band(model: str, z_end: float, lowest: float, g: ReachGeometry) -> ReachBand:
+    """Where the vertical move between `z_end` and the planner's descent start works."""
+    start = _descent_start(z_end, lowest, g)
+    return EMPTY if start is None else _band(model, z_end, start)
 
 
-@lru_cache(maxsize=64)
-def pick_reach(level: int, block_height_m: float = m.BLOCK_SIZE[2],
-               model: str = m.DEFAULT_MODEL) -> ReachBand:
-    """Where a block at `level` (1: on the table, 2: on one block, ...) can be picked."""
+def _block_centre(level: int, block_height_m: float, refusal: str) -> float:
+    """Height of the centre of a block at `level` (1: on the table), m; ValueError(refusal)
+    when there is no such level."""
     if level < 1:
-        raise ValueError(f"level must be >= 1, got {level}")
-    centre = (level - 0.5) * block_height_m
-    z_grasp = centre + GRASP_OFFSET_M
-    z_clear = centre + block_height_m / 2 + m.FINGER_PAD_LENGTH / 2 + APPROACH_CLEARANCE_M
-    return _band(model, z_grasp, _descent_start(z_grasp, z_clear))
+        raise ValueError(refusal)
+    return (level - 0.5) * block_height_m
+
+
+@lru_cache(maxsize=256)
+def place_reach(height: int, block_height_m: float = m.BLOCK_SIZE[2],
+                model: str = m.DEFAULT_MODEL,
+                geometry: ReachGeometry = DEFAULT_GEOMETRY) -> ReachBand:
+    """Where a block can be put on a stack of `height` blocks (0: the table)."""
+    placed = _block_centre(height + 1, block_height_m, f"height must be >= 0, got {height}")
+    z_release = placed + geometry.grasp_offset + geometry.release_clearance
+    return _vertical_band(model, z_release, z_release + geometry.min_approach_clearance,
+                          geometry)
+
+
+@lru_cache(maxsize=256)
+def pick_reach(level: int, block_height_m: float = m.BLOCK_SIZE[2],
+               model: str = m.DEFAULT_MODEL,
+               geometry: ReachGeometry = DEFAULT_GEOMETRY) -> ReachBand:
+    """Where a block at `level` (1: on the table, 2: on one block, ...) can be picked."""
+    centre = _block_centre(level, block_height_m, f"level must be >= 1, got {level}")
+    z_grasp = centre + geometry.grasp_offset
+    z_clear = (centre + block_height_m / 2 + m.FINGER_PAD_LENGTH / 2
+               + geometry.min_approach_clearance)
+    return _vertical_band(model, z_grasp, z_clear, geometry)
 
 
 def place_reach_table(max_height: int, block_height_m: float = m.BLOCK_SIZE[2],
-                      model: str = m.DEFAULT_MODEL) -> tuple[ReachBand, ...]:
+                      model: str = m.DEFAULT_MODEL,
+                      geometry: ReachGeometry = DEFAULT_GEOMETRY) -> tuple[ReachBand, ...]:
     """place_reach for heights 0..max_height (index = stack height)."""
-    return tuple(place_reach(h, block_height_m, model) for h in range(max_height + 1))
+    return tuple(place_reach(h, block_height_m, model, geometry) for h in range(max_height + 1))
+
+
+def pick_reach_table(max_level: int, block_height_m: float = m.BLOCK_SIZE[2],
+                     model: str = m.DEFAULT_MODEL,
+                     geometry: ReachGeometry = DEFAULT_GEOMETRY) -> tuple[ReachBand, ...]:
+    """pick_reach for levels 1..max_level (index = level - 1)."""
+    return tuple(pick_reach(level, block_height_m, model, geometry)
+                 for level in range(1, max_level + 1))

@@ -22,7 +22,6 @@ from scipy.spatial.transform import Rotation
 DEFAULT_CAMERA_POSITION = (0.22, 0.0, 0.75)
 # camera_optical_frame in world: x_cam = -y_world, y_cam = -x_world, z_cam = -z_world, i.e.
 # roll-pitch-yaw (fixed axes, R = Rz(yaw) Ry(pitch) Rx(roll)) = (pi, 0, -pi/2), as katana_sim.
-DEFAULT_CAMERA_RPY = (np.pi, 0.0, -np.pi / 2)
 DEFAULT_CAMERA_ORIENTATION = (0.7071067811865476, -0.7071067811865476, 0.0, 0.0)  # x, y, z, w
 DEFAULT_WIDTH = 640
 DEFAULT_HEIGHT = 480
@@ -62,15 +61,10 @@ class Calibration:
 
     # ---------------------------------------------------------------- construction
     @classmethod
-    def from_camera_pose(
-        cls,
-        K: np.ndarray,
-        position: Sequence[float],
-        orientation_xyzw: Sequence[float],
-        width: int = DEFAULT_WIDTH,
-        height: int = DEFAULT_HEIGHT,
-        D: Sequence[float] | None = None,
-    ) -> Calibration:
+    def from_camera_pose(cls, K: np.ndarray, position: Sequence[float],
+                         orientation_xyzw: Sequence[float], width: int = DEFAULT_WIDTH,
+                         height: int = DEFAULT_HEIGHT,
+                         D: Sequence[float] | None = None) -> Calibration:
         """From the pose of camera_optical_frame in world (what a TF or a parameter gives)."""
         q = np.asarray(orientation_xyzw, dtype=np.float64)
         if q.shape != (4,) or not np.isfinite(q).all() or np.linalg.norm(q) < 1e-9:
@@ -86,15 +80,9 @@ class Calibration:
                    D=np.zeros(5) if D is None else np.asarray(D, dtype=np.float64))
 
     @classmethod
-    def from_camera_rpy(
-        cls,
-        K: np.ndarray,
-        position: Sequence[float],
-        rpy: Sequence[float],
-        width: int = DEFAULT_WIDTH,
-        height: int = DEFAULT_HEIGHT,
-        D: Sequence[float] | None = None,
-    ) -> Calibration:
+    def from_camera_rpy(cls, K: np.ndarray, position: Sequence[float], rpy: Sequence[float],
+                        width: int = DEFAULT_WIDTH, height: int = DEFAULT_HEIGHT,
+                        D: Sequence[float] | None = None) -> Calibration:
         """From position and roll-pitch-yaw (fixed axes) of camera_optical_frame in world."""
         r = np.asarray(rpy, dtype=np.float64)
         if r.shape != (3,) or not np.isfinite(r).all():
@@ -109,35 +97,11 @@ class Calibration:
             default_camera_matrix(), DEFAULT_CAMERA_POSITION, DEFAULT_CAMERA_ORIENTATION
         )
 
-    @classmethod
-    def from_camera_info_fields(
-        cls,
-        k: Sequence[float],
-        d: Sequence[float],
-        width: int,
-        height: int,
-        position: Sequence[float],
-        orientation_xyzw: Sequence[float],
-    ) -> Calibration:
-        """From the fields of a sensor_msgs/CameraInfo (k row-major 9, d any length)."""
-        K = np.asarray(k, dtype=np.float64)
-        if K.size != 9:
-            raise ValueError(f"CameraInfo k must have 9 numbers, got {K.size}")
-        D = np.asarray(d, dtype=np.float64) if len(d) else np.zeros(5)
-        if D.size not in (4, 5, 8, 12, 14):
-            raise ValueError(f"distortion with {D.size} coefficients is not an OpenCV model")
-        return cls.from_camera_pose(K.reshape(3, 3), position, orientation_xyzw,
-                                    int(width), int(height), D)
-
     # ---------------------------------------------------------------- pose
     @property
     def orientation_xyzw(self) -> np.ndarray:
         """Quaternion of camera_optical_frame in world."""
         return Rotation.from_matrix(self.R.T).as_quat()
-
-    def with_intrinsics(self, K: np.ndarray, D: np.ndarray, width: int, height: int) -> Calibration:
-        """Same camera pose, new intrinsics (a fresh CameraInfo arrived)."""
-        return Calibration(K=K, rvec=self.rvec, tvec=self.tvec, width=width, height=height, D=D)
 
     # ---------------------------------------------------------------- projection
     def pixel_to_world(self, u, v, z) -> tuple[np.ndarray, np.ndarray]:

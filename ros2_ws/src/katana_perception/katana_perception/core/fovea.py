@@ -43,15 +43,15 @@ class FoveaParams:
     grid_step_px: float = 6.0  # fovea moves around a stack top on this grid...
     grid_radius_px: float = 36.0  # ...out to this far from its centre (36: action 1 too)
     fine_step_px: float = 2.0  # find_placement's second, finer pass
-    table_step_m: float = 0.02  # grid of candidate table places (state 0)
+    table_step_m: float = 0.02  # grid of candidate table places (height 0)
     # (nearest, farthest) placement radius from the pan axis per stack height, m (index =
-    # state; the last entry holds above): a taller stack needs the wrist higher, so the arm
+    # height; the last entry holds above): a taller stack needs the wrist higher, so the arm
     # reaches less far. fovea_node takes these from katana_manipulation.core.reach.
-    reach_by_state: tuple[tuple[float, float], ...] = ((0.14, 0.29),)
+    reach_by_height: tuple[tuple[float, float], ...] = ((0.14, 0.29),)
     area_x: tuple[float, float] = (0.14, 0.30)  # play area, m
     area_y: tuple[float, float] = (-0.16, 0.16)
     clearance: float = 0.005  # free margin around a placed block, m
-    max_state: int = 3  # highest stack offered for placement
+    max_height: int = 3  # highest stack offered for placement
     table_yaw: float = 0.0  # yaw of blocks placed on the table, rad
 
     def validate(self) -> None:
@@ -62,12 +62,12 @@ class FoveaParams:
             "grid_radius_px": self.grid_radius_px >= 0,
             "fine_step_px": self.fine_step_px > 0,
             "table_step_m": self.table_step_m > 0,
-            "reach_by_state": len(self.reach_by_state) > 0 and all(
-                len(b) == 2 and 0 <= b[0] < b[1] for b in self.reach_by_state),
+            "reach_by_height": len(self.reach_by_height) > 0 and all(
+                len(b) == 2 and 0 <= b[0] < b[1] for b in self.reach_by_height),
             "area_x": self.area_x[0] < self.area_x[1],
             "area_y": self.area_y[0] < self.area_y[1],
             "clearance": self.clearance >= 0,
-            "max_state": self.max_state >= 0,
+            "max_height": self.max_height >= 0,
         }
         bad = [k for k, ok in checks.items() if not ok]
         if bad:
@@ -189,7 +189,6 @@ class FoveaScene:
                 chain.append(above[chain[-1].id])
             self.stacks.append(self._build(chain))
         self.stacks.sort(key=lambda s: s.top.id)
-        self._points = probe_points(self.params.offset_px)
 
     def _face_mask(self, b: Block, level: int) -> np.ndarray:
         c = self.calibration
@@ -240,15 +239,15 @@ class FoveaScene:
         return best.height, best, hull_bits(local[in_window(local, size)], self.params.offset_px)
 
     # ---------------------------------------------------------------- checks
-    def reach(self, state: int) -> tuple[float, float]:
-        """(nearest, farthest) placement radius on a stack of height `state`, m."""
-        bands = self.params.reach_by_state
-        return bands[min(max(state, 0), len(bands) - 1)]
+    def reach(self, height: int) -> tuple[float, float]:
+        """(nearest, farthest) placement radius on a stack of `height`, m."""
+        bands = self.params.reach_by_height
+        return bands[min(max(height, 0), len(bands) - 1)]
 
-    def _reachable(self, x: float, y: float, state: int = 0) -> bool:
+    def _reachable(self, x: float, y: float, height: int = 0) -> bool:
         p = self.params
         e = 1e-9  # a grid point back-projected from its pixel comes back within rounding
-        near, far = self.reach(state)
+        near, far = self.reach(height)
         return (near - e <= math.hypot(x, y) <= far + e
                 and p.area_x[0] - e <= x <= p.area_x[1] + e
                 and p.area_y[0] - e <= y <= p.area_y[1] + e)
@@ -287,8 +286,11 @@ class FoveaScene:
         )
 
     # ---------------------------------------------------------------- scan
-    def available_states(self, max_state: int | None = None) -> list[int]:
-        cap = self.params.max_state if max_state is None else min(max_state, self.params.max_state)
+    def available_states(self, max_height: int | None = None) -> list[int]:
+        """The states (stack heights) this setting offers, 0 (the table) first."""
+        cap = self.params.max_height
+        if max_height is not None:
+            cap = min(max_height, cap)
         return [0] + sorted({st.height for st in self.stacks if st.height <= cap and st.offered})
 
     def _grid(self, step: float) -> list[tuple[float, float]]:
@@ -357,10 +359,10 @@ class FoveaScene:
             if want is not None or len(seen) == N_ACTIONS:
                 return
 
-    def observe(self, max_state: int | None = None) -> list[Instance]:
+    def observe(self, max_height: int | None = None) -> list[Instance]:
         """Every distinct (state, action) of this setting once per stack, in scan order."""
         out: list[Instance] = []
-        for s in self.available_states(max_state):
+        for s in self.available_states(max_height):
             if s == 0:
                 inst = self._table_instance()
                 if inst is not None:
@@ -377,9 +379,9 @@ class FoveaScene:
             raise NotFound(f"action {action} does not exist: actions are 1..{N_ACTIONS}")
         states = self.available_states()
         if state not in states:
-            if state > self.params.max_state:
+            if state > self.params.max_height:
                 raise NotFound(f"height {state} is above the highest allowed "
-                               f"({self.params.max_state})")
+                               f"({self.params.max_height})")
             raise NotFound(f"no stack of height {state} in this setting (available: "
                            f"{', '.join(map(str, states))})")
         if state == 0:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -57,7 +57,6 @@ class Snapshot:
 class Verdict:
     label: int
     reason: str
-    details: dict = field(default_factory=dict)
 
 
 class Judge:
@@ -89,29 +88,27 @@ class Judge:
             return Verdict(FELL, f"{placed_id} is not visible after the placement")
         x, y = (float(a) for a in c.pixel_to_world(det.u, det.v, (s + 1) * h))
         miss = math.hypot(x - placement.x, y - placement.y)
-        info = {"miss_m": miss, "placed_xy": (x, y)}
         if miss > p.position_tolerance:
             return Verdict(FELL, f"{placed_id} is {miss * 1000:.0f} mm from the placement "
-                           f"point (tolerance {p.position_tolerance * 1000:.0f} mm)", info)
+                           f"point (tolerance {p.position_tolerance * 1000:.0f} mm)")
         if not det.complete:
-            return Verdict(FELL, f"{placed_id} is partly covered: something fell onto it", info)
+            return Verdict(FELL, f"{placed_id} is partly covered: something fell onto it")
         if not stands_upright(det.size):
-            return Verdict(FELL, f"{placed_id} lies on its side", info)
+            return Verdict(FELL, f"{placed_id} lies on its side")
         for sid in placement.support_ids:
             sd = after.detections.get(sid)
             mem = before.blocks.get(sid)
             if sd is None:
                 continue  # hidden under the blocks above it, as it should be
             if sd.complete:
-                return Verdict(FELL, f"support block {sid} is in full view: nothing is on it",
-                               info)
+                return Verdict(FELL, f"support block {sid} is in full view: nothing is on it")
             if mem is not None:
                 # Partly covered, its centre estimate is poor; its pixels are not: they must
                 # still lie where the block was (its silhouette, grown by the tolerance).
                 out = outside_fraction(sd, mem, c, after.labels.shape, p.support_tolerance)
                 if out > 0.1:
                     return Verdict(FELL, f"support block {sid} moved: {out:.0%} of its pixels "
-                                   "lie outside where it was", info)
+                                   "lie outside where it was")
         if placement.support_ids:
             names = self.segmenter.names
             support_vals = [names.index(i) + 1 for i in placement.support_ids if i in names]
@@ -122,11 +119,10 @@ class Judge:
                 was = before.labels[region]
                 placed_val = names.index(placed_id) + 1 if placed_id in names else -1
                 changed = float(((now != was) & (now != placed_val)).sum()) / n
-                info["stack_changed"] = changed
                 if changed > p.changed_fraction:
-                    return Verdict(FELL, f"{changed:.0%} of the stack's pixels changed", info)
+                    return Verdict(FELL, f"{changed:.0%} of the stack's pixels changed")
         return Verdict(STABLE, f"{placed_id} rests at level {s + 1}, "
-                       f"{miss * 1000:.0f} mm from the placement point", info)
+                       f"{miss * 1000:.0f} mm from the placement point")
 
 
 def silhouette(calib: Calibration, b: Block, shape: tuple[int, int], grow_m: float) -> np.ndarray:

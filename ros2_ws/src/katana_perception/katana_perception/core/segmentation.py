@@ -55,7 +55,6 @@ class Detection:
     mask: np.ndarray  # bool, bbox-sized: the blob's pixels
     top_px: float  # expected edge length of the top face in the image, px
     level: int  # level assumed for the estimate (1 = on the table)
-    occluded_fraction: float  # share of the estimated top face covered by other colours
     complete: bool  # top face not covered by another block: nothing rests on it
     # resting extents, m: along the image direction `angle`, across it, and vertical;
     # z above the smallest edge means the block lies on its side
@@ -127,15 +126,10 @@ class Segmenter:
         return labels
 
     # ------------------------------------------------------------------ blocks
-    def segment(
-        self,
-        rgb: np.ndarray,
-        calibration: Calibration | None = None,
-        levels: Mapping[str, int] | None = None,
-    ) -> list[Detection]:
+    def segment(self, rgb: np.ndarray, calibration: Calibration | None = None,
+                levels: Mapping[str, int] | None = None) -> list[Detection]:
         """Every block visible in `rgb`, in colour-table order."""
-        labels = self.label_image(rgb)
-        return self.segment_labels(labels, calibration, levels)
+        return self.segment_labels(self.label_image(rgb), calibration, levels)
 
     def segment_labels(
         self,
@@ -229,7 +223,7 @@ class Segmenter:
         return Detection(
             color=name, u=float(centre[0]), v=float(centre[1]), angle=theta, area=area,
             bbox=(x0, y0, w, h), mask=sub, top_px=float(top), level=level,
-            occluded_fraction=occ, complete=complete, size=size,
+            complete=complete, size=size,
         )
 
     def _resting_size(self, sub, origin, theta, calib, level):

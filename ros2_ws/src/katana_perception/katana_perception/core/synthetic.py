@@ -68,7 +68,6 @@ class Renderer:
     ambient: float = 0.45
     noise_sigma: float = 2.0  # grey levels
     vignette: float = 0.12  # relative darkening at the image corners
-    table_extent: float = 1.0  # half-size of the table square around the camera, m
     _cache: dict = field(default_factory=dict, repr=False)
 
     def render(

@@ -1,10 +1,12 @@
 """ROS-free PyBullet physics of the Katana (see physics.py for the API; pacing.py for how far
 it runs and when)."""
 
+from katana_description.arm_contract import TrajectoryGoal
+
 from katana_sim.core.camera import CameraModel
 from katana_sim.core.config import ConfigError, SimConfig
-from katana_sim.core.controllers import TrajectoryGoal
-from katana_sim.core.physics import BlockState, PhysicsSim
+from katana_sim.core.ground_truth import BlockState
+from katana_sim.core.physics import PhysicsSim
 
 __all__ = [
     "BlockState",

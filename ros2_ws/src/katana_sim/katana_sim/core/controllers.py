@@ -16,28 +16,12 @@ import numpy as np
 from katana_description.arm_contract import (
     ABORTED,
     CANCELED,
-    GOAL_TOLERANCE_VIOLATED,
-    INVALID_GOAL,
-    INVALID_JOINTS,
-    PATH_TOLERANCE_VIOLATED,
-    RUNNING,
-    SUCCEEDED,
-    SUCCESSFUL,
     ArmContract,
-    GripperGoal,
-    GripperJudge,
-    GripperOutcome,
     Outcome,
     TrajectoryGoal,
     TrajectoryJudge,
 )
-
-__all__ = [
-    "ABORTED", "CANCELED", "GOAL_TOLERANCE_VIOLATED", "INVALID_GOAL", "INVALID_JOINTS",
-    "PATH_TOLERANCE_VIOLATED", "RUNNING", "SUCCEEDED", "SUCCESSFUL", "ArmContract",
-    "GripperController", "GripperGoal", "GripperOutcome", "Outcome", "TrajectoryFollower",
-    "TrajectoryGoal",
-]
+from katana_description.gripper_contract import GripperGoal, GripperJudge, GripperOutcome
 
 
 class TrajectoryFollower:

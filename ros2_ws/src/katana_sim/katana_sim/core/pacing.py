@@ -58,10 +58,6 @@ class Schedule:
                 self._next[name] = max(self._next[name] + period, t + 0.5 * period)
         return out
 
-    def postpone(self, name: str, t: float) -> None:
-        """Make `name` due no earlier than t."""
-        self._next[name] = max(self._next[name], t)
-
 
 class WallPacer:
     """Simulated time owed at a wall-clock instant, at `rate` simulated seconds per wall second.

@@ -23,62 +23,31 @@ motors are PyBullet position motors fed a target that moves within the joint spe
 torques far above what gravity needs (katana_description.models.SIM_MOTOR_TORQUE). Blocks are held
 by contact and friction only: nothing welds a block to the hand.
 
-Ground truth levels come from geometry: a block resting on the table is level 1; one whose
-bottom face touches another block's top face, overlapping it, is one level higher.
+Ground truth (levels, visibility) is core.ground_truth's, from the block poses.
 """
 
 from __future__ import annotations
 
 import math
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pybullet as p
+from katana_description import arm_contract as ac
+from katana_description import gripper_contract as gc
 from katana_description import models as m
 from katana_description import urdf_gen, urdf_path
 from katana_description.arm_contract import complete_trajectory as ctl_complete
-from katana_description.arm_contract import validate_gripper as ctl_validate_gripper
 from katana_description.arm_contract import validate_trajectory as ctl_validate
+from katana_description.gripper_contract import validate_gripper as ctl_validate_gripper
 
 from katana_sim.core import controllers as ctl
 from katana_sim.core.camera import CameraModel
 from katana_sim.core.config import SimConfig
+from katana_sim.core.ground_truth import BlockState, block_states, yaw_of
 
 FINGER_PAD_LINKS = ("katana_r_finger_link", "katana_l_finger_link")
-
-
-@dataclass
-class BlockState:
-    """True state of one block (frame `world`)."""
-
-    id: str
-    color: str
-    position: tuple[float, float, float]
-    quaternion: tuple[float, float, float, float]  # x, y, z, w
-    yaw: float  # about +z, in (-pi/2, pi/2]
-    size: tuple[float, float, float]
-    level: int  # 1 on the table, 2 on one block, ...
-    on_top: bool  # nothing rests on it
-    visible: bool  # its top face is in the image and not covered by another block (the arm is
-    # not considered: park it out of view before an image is taken)
-    tilted: bool  # not lying flat (fell over, leaning)
-    pixel_u: float
-    pixel_v: float
-    pixel_angle: float  # direction of the block's x axis in the image, rad (mod pi)
-    support: str = ""  # id of the block it rests on; "" for the table
-
-
-def _yaw_of(quat) -> float:
-    """Yaw of the block's x axis in (-pi/2, pi/2] (a cuboid is symmetric under half turns)."""
-    rot = np.array(p.getMatrixFromQuaternion(quat)).reshape(3, 3)
-    yaw = math.atan2(rot[1, 0], rot[0, 0])
-    while yaw <= -math.pi / 2:
-        yaw += math.pi
-    while yaw > math.pi / 2:
-        yaw -= math.pi
-    return yaw
 
 
 class _Refused:
@@ -103,7 +72,7 @@ class PhysicsSim:
     def __init__(self, config: SimConfig | None = None) -> None:
         self.cfg = (config or SimConfig()).validate()
         self.camera: CameraModel = self.cfg.camera
-        self.contract = ctl.ArmContract(model=self.cfg.model)
+        self.contract = ac.ArmContract(model=self.cfg.model)
         self.dt = 1.0 / self.cfg.physics_rate
         # Simulated time is whole physics steps plus idle time (advance_clock); motions run on
         # step counts, so a motion's targets are bit-for-bit the same whatever time it starts at
@@ -245,7 +214,7 @@ class PhysicsSim:
               yaw: float | None = None) -> None:
         """Put block_id on top of block `on`, offset by (dx, dy) metres in the world frame."""
         pos, quat = self._pb(p.getBasePositionAndOrientation, self.blocks[on])
-        top_yaw = _yaw_of(quat) if yaw is None else yaw
+        top_yaw = yaw_of(quat) if yaw is None else yaw
         h = self.cfg.block_size[2]
         self.set_block_pose(block_id, (pos[0] + dx, pos[1] + dy, pos[2] + h + 1e-4), top_yaw)
 
@@ -325,7 +294,7 @@ class PhysicsSim:
     def tool_pose(self) -> tuple[np.ndarray, np.ndarray]:
         return self.link_pose("katana_gripper_tool_frame")
 
-    def start_trajectory(self, goal: ctl.TrajectoryGoal) -> ArmHandle:
+    def start_trajectory(self, goal: ac.TrajectoryGoal) -> ArmHandle:
         """Validate (the arm contract) and start a trajectory, preempting a running one. A
         refused goal returns a handle that is already done, with the error code and reason.
         Joints a partial goal leaves out hold where they are."""
@@ -355,12 +324,12 @@ class PhysicsSim:
     def start_gripper(self, position: float, effort: float = 0.0) -> ArmHandle:
         """Move both fingers towards `position` (rad) with at most `effort` N m (0: default).
         Refused (a handle already done) by the arm contract's rules."""
-        goal = ctl.GripperGoal(position, effort)
+        goal = gc.GripperGoal(position, effort)
         verdict = ctl_validate_gripper(goal, arm_active=self._trajectory is not None)
         pos, _, _ = self.joint_state()
         if not verdict.ok:
-            return ArmHandle(_Refused(ctl.GripperOutcome(
-                ctl.ABORTED, float(pos[5:].mean()), message=verdict.error_string)))
+            return ArmHandle(_Refused(gc.GripperOutcome(
+                ac.ABORTED, float(pos[5:].mean()), message=verdict.error_string)))
         self.cancel_gripper()
         self._finger_effort = effort if effort > 0 else self.cfg.gripper_effort
         # Start from where the fingers are: a target squeezing a block lies past them.
@@ -496,59 +465,6 @@ class PhysicsSim:
 
     def ground_truth(self) -> list[BlockState]:
         """True poses, stack levels and visibility of every block."""
-        sx, sy, h = self.cfg.block_size
-        raw = []
-        for bid, body in self.blocks.items():
-            pos, quat = self._pb(p.getBasePositionAndOrientation, body)
-            rot = np.array(p.getMatrixFromQuaternion(quat)).reshape(3, 3)
-            raw.append((bid, np.array(pos), quat, rot))
-        raw.sort(key=lambda r: r[1][2])
-        footprint = 0.5 * min(sx, sy) + 0.5 * max(sx, sy)  # centre distance allowing overlap
-        level: dict[str, int] = {}
-        support: dict[str, str] = {}
-        covered: set[str] = set()
-        for i, (bid, pos, _, _rot) in enumerate(raw):
-            best = ""
-            for other, opos, _, _ in raw[:i]:
-                dz = pos[2] - opos[2]
-                if abs(dz - h) < 0.4 * h and np.hypot(*(pos[:2] - opos[:2])) < footprint:
-                    if not best or level[other] > level[best]:
-                        best = other
-            if best:
-                level[bid] = level[best] + 1
-                support[bid] = best
-                covered.add(best)
-            else:
-                level[bid] = max(1, int(round((pos[2] - 0.5 * h) / h)) + 1)
-        # A block is also hidden when any block lies above it and overlaps it in xy.
-        for bid, pos, _, _ in raw:
-            for other, opos, _, _ in raw:
-                if other != bid and opos[2] > pos[2] + 0.5 * h and np.hypot(
-                    *(pos[:2] - opos[:2])
-                ) < footprint:
-                    covered.add(bid)
-        result = []
-        for bid, pos, quat, rot in sorted(raw, key=lambda r: list(self.blocks).index(r[0])):
-            up = rot[:, 2] if abs(rot[2, 2]) > 0.5 else np.array([0.0, 0.0, 1.0])
-            top = pos + np.sign(up[2]) * up * (h / 2)
-            ends = self.camera.project(np.array([top, top + rot[:, 0] * (sx / 2)]))
-            uv = ends[0]
-            in_view = bool(self.camera.in_view(top[None, :])[0])
-            angle = math.atan2(ends[1][1] - uv[1], ends[1][0] - uv[0])
-            angle = (angle + math.pi / 2) % math.pi - math.pi / 2
-            result.append(
-                BlockState(
-                    id=bid, color=bid, position=tuple(pos.tolist()), quaternion=tuple(quat),
-                    yaw=_yaw_of(quat), size=tuple(self.cfg.block_size), level=level[bid],
-                    on_top=bid not in covered, visible=in_view and bid not in covered,
-                    tilted=not m.lies_flat(*quat),
-                    pixel_u=float(uv[0]) if in_view else math.nan,
-                    pixel_v=float(uv[1]) if in_view else math.nan,
-                    pixel_angle=angle if in_view else math.nan,
-                    support=support.get(bid, ""),
-                )
-            )
-        return result
-
-    def stack_height(self, block_id: str) -> int:
-        return {b.id: b.level for b in self.ground_truth()}[block_id]
+        poses = {bid: self._pb(p.getBasePositionAndOrientation, body)
+                 for bid, body in self.blocks.items()}
+        return block_states(poses, self.cfg.block_size, self.camera)

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from typing import TypeVar
 
 import numpy as np
 from geometry_msgs.msg import Pose, Vector3
@@ -17,6 +18,9 @@ from .core.fovea import Instance
 from .core.judge import Placement
 from .core.memory import Block, Seen, footprint_overlap, top_height
 from .core.segmentation import Detection, wrap_quarter
+
+M = TypeVar("M")
+T = TypeVar("T")
 
 _CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4}
 
@@ -83,6 +87,16 @@ def calibration_from_camera_info(
 
 
 
+def decode_or_warn(node, what: str, decode: Callable[[M], T], msg: M) -> T | None:
+    """decode(msg); or, when that raises ValueError, None after a throttled warning on the
+    node's logger that `what` was rejected and why (a bad message must not end a node)."""
+    try:
+        return decode(msg)
+    except ValueError as err:
+        node.get_logger().warn(f"{what} rejected: {err}", throttle_duration_sec=5.0)
+        return None
+
+
 def node_calibration(node, msg: CameraInfo) -> Calibration | None:
     """The calibration of a CameraInfo with the node's camera pose parameters (camera_position,
     camera_rpy, extrinsics_file), or None after a throttled warning saying why it was refused.
@@ -97,12 +111,10 @@ def node_calibration(node, msg: CameraInfo) -> Calibration | None:
     cached = getattr(node, "_calibration_from", None)
     if cached is not None and cached[0] == key:
         return cached[1]
-    try:
-        calib = calibration_from_camera_info(msg, *pose)
-    except ValueError as err:
-        node.get_logger().warn(f"camera_info rejected: {err}", throttle_duration_sec=5.0)
-        return None
-    node._calibration_from = (key, calib)
+    calib = decode_or_warn(node, "camera_info",
+                           lambda m: calibration_from_camera_info(m, *pose), msg)
+    if calib is not None:
+        node._calibration_from = (key, calib)
     return calib
 
 

@@ -1,4 +1,4 @@
-"""Parameter specs the perception nodes share (besides katana_common.scene.SCENE_PARAMS)."""
+"""Parameters the perception nodes share (besides katana_common.scene.SCENE_PARAMS)."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ from pathlib import Path
 from katana_common.param_spec import Param
 
 from .core.colors import color_table_strings, parse_color_table
+from .core.segmentation import Segmenter
 
 #: katana-calibrate's extrinsics; when set it replaces camera_position and camera_rpy
 EXTRINSICS_FILE = Param(
@@ -20,8 +21,15 @@ COLOR_TABLE = Param(
     "scale; the name is the block id (read-only).", min_length=1)
 
 
+def segmenter_from(values) -> Segmenter:
+    """The segmenter of a node's parameters: its color_table and the scene's block_size."""
+    return Segmenter(parse_color_table(values["color_table"]),
+                     block_size=tuple(values["block_size"]))
+
+
 def check_files_and_colors(values) -> str | None:
-    """Cross-check of the shared specs: the extrinsics file exists, the colour table parses."""
+    """Cross-check of the shared parameters: the extrinsics file exists, the colour table
+    parses."""
     path = values.get("extrinsics_file", "")
     if path and not Path(path).is_file():
         return f"parameter 'extrinsics_file': no such file {path!r}"

@@ -1,4 +1,5 @@
-"""Stamps and durations to and from seconds (float), one way for every node."""
+"""Stamps and durations to and from seconds (float), one way for every node: the message <->
+value conversions katana_common shares (each package has its own messages.py)."""
 
 from __future__ import annotations
 

@@ -1,15 +1,16 @@
-"""In-process ROS graphs for tests: an own rclpy Context, nodes spun by a MultiThreadedExecutor
-in a background thread, and bounded waits on conditions (never a bare sleep)."""
+"""A ROS graph inside this process: an own rclpy Context (optionally in another ROS domain),
+nodes spun by a MultiThreadedExecutor in a background thread, and bounded waits on conditions
+(never a bare sleep). katana-robot runs its truth measurement and skill trials in one, and
+watches a run of another process through one; the whole-graph tests and benches use it too."""
 
 from __future__ import annotations
 
-import threading
-import time
 from collections.abc import Callable
 from typing import Any
 
 import rclpy
-from katana_common.executor import MultiThreadedExecutor
+from katana_common.executor import BackgroundSpin, MultiThreadedExecutor
+from katana_common.testing import wait_until
 from rclpy.context import Context
 from rclpy.node import Node
 
@@ -17,18 +18,14 @@ from rclpy.node import Node
 class InProcessGraph:
     """Usage: with InProcessGraph() as g: g.add(node...); g.wait_for(lambda: ...)."""
 
-    def __init__(self, threads: int = 8) -> None:
+    def __init__(self, threads: int = 8, domain_id: int | None = None,
+                 close_timeout_s: float = 5.0) -> None:
         self.context = Context()
-        rclpy.init(context=self.context)
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.close_timeout_s = close_timeout_s
         self.executor = MultiThreadedExecutor(num_threads=threads, context=self.context)
         self.nodes: list[Node] = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def _spin(self) -> None:
-        while not self._stop.is_set() and self.context.ok():
-            self.executor.spin_once(timeout_sec=0.05)
+        self._spin = BackgroundSpin(self.executor)
 
     def add(self, *nodes: Node) -> None:
         for node in nodes:
@@ -44,14 +41,10 @@ class InProcessGraph:
     @staticmethod
     def wait_for(cond: Callable[[], Any], timeout: float = 10.0, poll: float = 0.005) -> Any:
         """Poll cond until it is truthy (returns its value) or fail after timeout seconds."""
-        deadline = time.monotonic() + timeout
-        while True:
-            value = cond()
-            if value:
-                return value
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"condition not met within {timeout} s")
-            threading.Event().wait(poll)
+        value = wait_until(cond, timeout, poll)
+        if not value:
+            raise TimeoutError(f"condition not met within {timeout} s")
+        return value
 
     def result(self, future, timeout: float = 30.0):
         """Wait (bounded) for an rclpy future and return its result."""
@@ -59,9 +52,8 @@ class InProcessGraph:
         return future.result()
 
     def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5.0)
-        self.executor.shutdown(timeout_sec=5.0)
+        self._spin.stop(self.close_timeout_s)
+        self.executor.shutdown(timeout_sec=self.close_timeout_s)
         for node in self.nodes:
             self.executor.remove_node(node)
             node.destroy_node()

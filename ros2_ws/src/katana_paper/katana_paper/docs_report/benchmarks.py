@@ -1,0 +1,298 @@
+"""docs/BENCHMARKS.md: each bench's figures beside a floor or baseline from the same run,
+its command and its CPU, or "not measured" where its file is missing."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from .formatting import (
+    NONE_MEASURED,
+    NOT_RECORDED,
+    Json,
+    display,
+    finite,
+    get,
+    met_text,
+    num,
+    ratio,
+    table,
+)
+from .provenance import bench_command, machine_of, made_by, not_measured
+from .sources import BENCHES, GENERATED
+
+SPEED_HEADER = ("figure", "measured", "floor or baseline, same run", "ratio", "target")
+
+
+def bench_core(data: Json) -> str:
+    """The curiosity core's speeds beside the NumPy reference and the CPU time of the same run."""
+    rows = []
+    for s in ("q1", "q10", "conf", "random"):
+        rate, ref = get(data, "steps_per_s", s), get(data, "reference_steps_per_s", s)
+        slowest = get(data, "steps_per_s_floor", s)
+        target = "-"
+        if s == "q1":
+            target = met_text(slowest, get(data, "targets", "q1_steps_per_s"), at_most=False)
+            target += ", by the slowest run" if target != "-" else ""
+        elif finite(get(data, "targets", f"{s}_speedup_over_reference")):
+            t = get(data, "targets", f"{s}_speedup_over_reference")
+            ok = finite(rate) and finite(ref) and ref > 0 and rate / ref >= t
+            target = f"{t:g}x ({'met' if ok else 'not met'})"
+        rows.append((f"{display(s)} steps per second, compiled path, median of 3 runs "
+                     f"(slowest {num(slowest)})", num(rate), f"NumPy reference: {num(ref)}",
+                     ratio(rate, ref, 1), target))
+    loop, end = get(data, "steps_per_s", "q1"), get(data, "run_steps_per_s", "q1")
+    rows.append(("Q1 steps per second through `experiments.run` (KL every 50 steps)",
+                 num(end), f"the compiled loop alone: {num(loop)}", ratio(loop, end), "-"))
+    wall, cpu = get(data, "paper_default_wall_s"), get(data, "paper_default_cpu_s")
+    cpus = get(machine_of(data), "cpus")
+    floor = cpu / cpus if finite(cpu) and finite(cpus) and cpus else None
+    rows.append((f"`katana-curiosity paper --jobs 2` with its defaults, wall s, median of 3 "
+                 f"(slowest {num(get(data, 'paper_default_wall_s_max'), 2)})", num(wall, 2),
+                 f"its CPU time over the {cpus} CPUs: {num(cpu, 2)} / {cpus} = {num(floor, 2)}",
+                 ratio(wall, floor), met_text(wall, get(data, "targets", "paper_default_wall_s"))))
+    rows.append(("one planning call after a model update (warm start), ms",
+                 num(get(data, "plan_ms"), 4), NONE_MEASURED, "-", "-"))
+    rows.append(("one planning call from a fresh planner, ms", num(get(data, "plan_cold_ms"), 4),
+                 NONE_MEASURED, "-", "-"))
+    rows.append(("first fast run after a checkout (compiles the loop into an empty cache), s",
+                 num(get(data, "fast_path_cold_compile_s"), 2), NONE_MEASURED, "-", "-"))
+    return table(SPEED_HEADER, rows)
+
+
+def bench_perception(data: Json) -> str:
+    """Segmentation beside one colour conversion of the frame, and the other vision timings."""
+    floor = get(data, "perception_floor_ms")
+    seg, seg8 = get(data, "perception_ms"), get(data, "perception_8_blocks_ms")
+    rows = [
+        (f"segmentation of one {get(data, 'image', default='')} frame, 4 blocks, ms", num(seg),
+         f"one colour conversion of the frame: {num(floor)}", ratio(seg, floor),
+         met_text(seg, get(data, "perception_target_ms"))),
+        ("segmentation of a frame of 8 blocks, ms", num(seg8),
+         f"the same conversion: {num(floor)}", ratio(seg8, floor), "-"),
+        (f"fovea/observe of a 4-block setting ({get(data, 'observe_instances')} instances), ms",
+         num(get(data, "observe_ms")), NONE_MEASURED, "-", "-"),
+        ("one placement judgement, ms", num(get(data, "judge_ms")), NONE_MEASURED, "-", "-"),
+        ("the reach table fovea_node computes at start-up, ms",
+         num(get(data, "reach_table_ms"), 1), NONE_MEASURED, "-", "-"),
+        ("one camera frame written into an MCAP recording, ms",
+         num(get(data, "record_frame_ms")), NONE_MEASURED, "-", "-"),
+    ]
+    return (table(SPEED_HEADER, rows) + "\n\nFrames from the "
+            f"{get(data, 'frames', default=NOT_RECORDED)} renderer.")
+
+
+def bench_sim(data: Json) -> str:
+    """Render time, physics speed and pick-and-places of the simulation, against its targets."""
+    targets = get(data, "targets", default={}) or {}
+    pp = get(data, "pick_place_s")
+    rows = [
+        ("render one 640x480 frame, ms", num(get(data, "render_ms"), 1), NONE_MEASURED, "-",
+         met_text(get(data, "render_ms"), targets.get("render_ms"))),
+        ("simulated seconds per wall second, arm moving, no rendering",
+         num(get(data, "real_time_factor"), 1), NONE_MEASURED, "-", "-"),
+        (f"one pick-and-place through the action, real_time_factor 0, s (succeeded: "
+         f"{get(data, 'pick_place_succeeded')} of {get(data, 'pick_place_runs')})", num(pp),
+         "none here (the arm bench measures one)", "-", met_text(pp, targets.get("pick_place_s"))),
+        ("simulated seconds per wall second during those pick-and-places",
+         num(get(data, "pick_place_real_time_factor"), 1), NONE_MEASURED, "-", "-"),
+    ]
+    return table(SPEED_HEADER, rows)
+
+
+def bench_arm(data: Json) -> str:
+    """Pick-and-places through ROS beside the same motions without ROS: speed and precision."""
+    targets = get(data, "targets", default={}) or {}
+    phys = get(data, "physics_only", default={}) or {}
+    err, perr = get(data, "placement_error_mm"), get(phys, "placement_error_mm")
+    pp, floor = get(data, "pick_place_s"), get(data, "physics_only_s")
+    speed = table(SPEED_HEADER, [
+        ("one pick-and-place through the action, real_time_factor 0, wall s (median)", num(pp),
+         f"the same motions stepped without ROS: {num(floor)}", ratio(pp, floor),
+         met_text(pp, targets.get("pick_place_s")))])
+    rows = [
+        ("placement error p95, mm", num(get(err, "p95"), 2), num(get(perr, "p95"), 2),
+         met_text(get(err, "p95"), targets.get("placement_error_mm.p95"))),
+        ("placement error median / max, mm",
+         f"{num(get(err, 'median'), 2)} / {num(get(err, 'max'), 2)}",
+         f"{num(get(perr, 'median'), 2)} / {num(get(perr, 'max'), 2)}", "-"),
+        ("pick success", num(get(data, "pick_success")), num(get(phys, "pick_success")),
+         met_text(get(data, "pick_success"), targets.get("pick_success"), at_most=False)),
+    ]
+    stable = get(data, "action6_stable", default={}) or {}
+    for h in sorted(stable, key=int):
+        rows.append((f"action-6 placements that stayed, height {h}", num(stable[h]),
+                     num(get(phys, "action6_stable", h)),
+                     met_text(stable[h], targets.get("action6_stable"), at_most=False)))
+    precision = table(("figure", f"through ROS ({get(data, 'runs')} goals)",
+                       "physics only, same trials", "target"), rows)
+    same = get(data, "same_outcomes_as_physics_only")
+    same_text = "yes" if same else "no" if same is not None else NOT_RECORDED
+    lines = [speed, "", precision, "",
+             f"Simulated seconds per pick-and-place: {num(get(data, 'sim_s_per_pick_place'), 2)}."
+             f" The same outcome as physics only, trial by trial: {same_text}."]
+    failures = get(data, "failures", default=[]) or []
+    if failures:
+        lines.append("Failed goals: " + "; ".join(f"`{f}`" for f in failures) + ".")
+    return "\n".join(lines)
+
+
+def bench_loop(data: Json) -> str:
+    """Seconds per experiment beside the work it runs on, the stages and the dropped attempts."""
+    targets = get(data, "targets", default={}) or {}
+    spe, floor = get(data, "s_per_experiment"), get(data, "experiment_floor_s")
+    two = get(data, "experiment_floor_two_images_s")
+    dropped = get(data, "dropped_experiments", default={}) or {}
+    if isinstance(dropped.get("by_reason"), Mapping):  # {"total", "by_reason", "fraction_..."}
+        reasons = dict(dropped["by_reason"])
+    else:  # a flat {reason: count}
+        reasons = {k: v for k, v in dropped.items() if finite(v)}
+    n_dropped = sum(v for v in reasons.values() if finite(v))
+    n = get(data, "experiments")
+    share = n_dropped / (n + n_dropped) if finite(n) and n + n_dropped else None
+    rows = [
+        ("seconds per experiment, the whole loop in one process (median)", num(spe, 2),
+         f"physics, renders, segmentation, judge and fovea in the same windows: {num(floor, 2)}",
+         ratio(spe, floor), met_text(spe, targets.get("s_per_experiment"))),
+        ("the same, against only the two images an experiment needs", num(spe, 2),
+         num(two, 2), ratio(spe, two), "-"),
+    ]
+    out = [table(SPEED_HEADER, rows), ""]
+    stages = get(data, "stage_median_s", default={}) or {}
+    if stages:
+        out += ["Stage medians as the curiosity node logs them:", "",
+                table(("stage", "median s"), [(f"`{k}`", num(v)) for k, v in stages.items()]),
+                ""]
+    floors = get(data, "floor_median_s", default={}) or {}
+    if floors:
+        out += ["The floor by kind of work, median per experiment:", "",
+                table(("work", "median s"), [(k, num(v)) for k, v in floors.items()]), ""]
+    drop_text = ", ".join(f"{v} {k}" for k, v in reasons.items()) or "none"
+    out.append(
+        f"{num(n)} experiments logged; attempts dropped: {drop_text} (a share of "
+        f"{num(share, 2)}; target at most {num(targets.get('dropped_fraction'), 2)}). "
+        f"Camera at {num(get(data, 'camera_rate_hz'), 1)} Hz of sim time; "
+        f"{num(get(data, 'renders_per_experiment'), 1)} renders and "
+        f"{num(get(data, 'segmentations_per_experiment'), 1)} segmentations per experiment. "
+        f"Highest stack {get(data, 'highest_stack')}; heights explored "
+        f"{get(data, 'heights_explored')}.")
+    return "\n".join(out)
+
+
+def bench_driver(data: Json) -> str:
+    """The driver's reads and state rates beside the emulator's own share, shutdowns and faults."""
+    handle = get(data, "emulator_handle_ms")
+    rows = [
+        ("position read over TCP, round trip, ms (median)", num(get(data, "request_ms"), 4),
+         f"the emulator's handling of it alone: {num(handle, 4)}",
+         ratio(get(data, "request_ms"), handle, 1), "below 1"),
+        ("the same, p95, ms", num(get(data, "request_p95_ms"), 4), num(handle, 4),
+         ratio(get(data, "request_p95_ms"), handle, 1), "-"),
+        ("position read over a pseudo-terminal (serial transport), ms",
+         num(get(data, "serial_request_ms"), 4), num(handle, 4),
+         ratio(get(data, "serial_request_ms"), handle, 1), "-"),
+    ]
+    poll = get(data, "poll_rate_hz")
+    for key, what in (("state_hz", "idle, by arrival"), ("state_hz_from_stamps", "idle, by stamp"),
+                      ("state_hz_moving", "moving, by arrival"),
+                      ("state_hz_moving_from_stamps", "moving, by stamp")):
+        rows.append((f"joint_states rate, {what}, Hz", num(get(data, key), 2),
+                     f"the configured poll rate: {num(poll, 1)}", ratio(get(data, key), poll),
+                     f"at least {num(poll, 1)}" if finite(poll) else "-"))
+    out = [table(SPEED_HEADER, rows)]
+    shutdown = get(data, "shutdown_s", default={}) or {}
+    if shutdown:
+        out += ["", "Seconds from the signal to the end of the process (target at most 2):", "",
+                table(("process and signal", "s"), [(k, num(v)) for k, v in shutdown.items()])]
+    faults = get(data, "faults", default={}) or {}
+    if faults:
+        out += ["", "One trajectory goal under each fault of the emulator (targets: 0 duplicated "
+                "segments and a largest speed ratio of at most 1.05):", "",
+                table(("fault", "duplicated segments", "largest speed ratio", "goal ended",
+                       "next goal"),
+                      [(k, get(v, "duplicated_segments"), num(get(v, "max_speed_ratio")),
+                        get(v, "outcome"), get(v, "next_goal")) for k, v in faults.items()])]
+    return "\n".join(out)
+
+
+BENCH_RENDER = {"core": bench_core, "perception": bench_perception, "sim": bench_sim,
+                "arm": bench_arm, "loop": bench_loop, "driver": bench_driver}
+
+
+def render_benchmarks(results: Mapping) -> str:
+    """BENCHMARKS.md: every bench in order, measured or with the command that measures it."""
+    parts = [GENERATED, "", BENCHMARKS_INTRO]
+    for name in BENCHES:
+        title, about = BENCH_ABOUT[name]
+        parts += ["", f"## {name}: {title}", "", about, ""]
+        data = results.get(name)
+        if data is None:
+            parts.append(not_measured(name))
+            continue
+        took = get(data, "bench_wall_s")
+        parts.append(made_by(bench_command(data), data)
+                     + (f" The bench took {num(took, 1)} s." if finite(took) else ""))
+        parts += ["", BENCH_RENDER[name](data)]
+    return "\n".join(parts).rstrip() + "\n"
+
+
+BENCHMARKS_INTRO = """\
+# Benchmarks
+
+What each benchmark measures, and the figures it gave. `make bench` runs every bench;
+`python bench/run.py NAME ...` runs some of them (core, perception, sim, arm, loop, driver).
+Each writes `bench/results/NAME.json`, which records the machine it ran on (`machine.cpu_model`,
+`machine.cpus`). The figures below come from the committed copies of those files in
+`docs/results/bench/` (`python -m katana_paper.docs_report collect NAME` copies one there and
+rewrites this page).
+
+Every speed figure stands beside a floor or a baseline measured in the same run, and their
+ratio: the floor is the same work without the overhead under test, so the ratio carries over
+from one machine to another better than the figure itself. Where a bench measures no floor,
+the table says so. Times depend on the CPU and on what else runs at the time, so across
+machines compare the ratios, and read small differences between runs as noise."""
+
+BENCH_ABOUT: dict[str, tuple[str, str]] = {
+    "core": ("the curiosity core", """\
+`bench/bench_core.py`. Steps per second of Q1, Q10, Conf and Random in the abstract blocks
+world, one process: on the compiled fast path (`katana_curiosity.core.fastpath`, one
+numba-compiled loop over world, query scan, RLS update and LSPI, which `katana-curiosity` uses)
+and on the NumPy reference (`Explorer.step`) over the same seeds. The two make identical
+trajectories (a test checks queries, modes and labels at every step and the weights to 1e-9).
+Also: one planning call, the default `katana-curiosity paper` run (its wall time beside its
+CPU time spread over the machine's CPUs), and the one-time compilation after a checkout
+(cached in `__pycache__` afterwards)."""),
+    "perception": ("the vision core", """\
+`bench/bench_perception.py`. Milliseconds, medians over repetitions: the segmentation of one
+camera frame beside its floor (the one colour conversion every segmentation starts with),
+`fovea/observe` of a 4-block setting, one placement judgement, the reach table `fovea_node`
+computes at start-up, and writing one camera frame into an MCAP recording."""),
+    "sim": ("the PyBullet simulation", """\
+`bench/bench_sim.py`. One 640x480 render, physics speed with the arm moving, and whole
+pick-and-places through the `pick_and_place` action (`sim_node` and `pick_place_executor` in
+one process, `real_time_factor` 0: the physics steps only inside the motions, as fast as it
+can). The arm bench measures pick-and-places in depth, with their floor."""),
+    "arm": ("the arm's precision and speed", """\
+`bench/bench_arm.py`. Pick-and-places through the `pick_and_place` action on the fast sim,
+drawn at random over the reach of each height (`katana_manipulation.core.reach`), onto the
+table and onto stacks of 1-3, each goal an action-6 placement (all five fovea points on the
+block below). Each trial is run twice: just before it goes through ROS, the same motions are
+stepped in `PhysicsSim` without ROS, the floor, so both see the same load. Precision is read
+from the simulator's ground truth: the placed block's distance from the commanded centre, and
+whether it stayed (level h + 1, the stack below intact) one simulated second later."""),
+    "loop": ("the whole experiment loop", """\
+`bench/bench_loop.py`. `katana-demo` with seed 0 in the bench's own process (every node in one
+process, headless, fast sim) for 31 experiments. Seconds per experiment is the median wall time
+between consecutive logged experiments, dropped attempts included. The floor is measured on
+the same experiments: the time spent inside the work the loop runs on (physics steps, camera
+renders, segmentation, the judge and the fovea), summed per experiment; the ratio is the
+loop's overhead (waits, ROS transport). Renders beyond the two images an experiment needs are
+counted apart: they are work nobody uses."""),
+    "driver": ("the Katana driver against its emulator", """\
+`bench/bench_driver.py`. Against `katana-emulator` on loopback, not the real arm (a request
+takes about 40 ms on the arm): the round trip of one position read over TCP and over a
+pseudo-terminal, framing and CRC included, beside the emulator's own handling of it;
+`joint_states` rates idle and while a trajectory runs, by arrival and by stamp, against the
+configured poll rate; seconds from SIGINT or SIGTERM to the end of the driver and camera
+processes; and one trajectory goal under each fault of the emulator (lost, corrupt, split and
+late replies, a silent or frozen controller, a dropped TCP link, a restarted emulator)."""),
+}
