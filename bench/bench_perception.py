@@ -41,7 +41,7 @@ def _frames():
     """Frames of four blocks before and after red is put on a stack of two, and the memory
     of the before scene: from the PyBullet sim when installed, else the synthetic renderer."""
     try:
-        from katana_sim.core import PhysicsSim, SimConfig  # optional: PyBullet may be missing
+        from katana_sim.core import PhysicsSim, SimConfig  # noqa: PLC0415 - optional: PyBullet may be missing
     except ImportError:
         calib = Calibration.overhead_default()
         before = [stack_block("red", 0.17, 0.09, 1, 0.2), stack_block("green", 0.26, -0.1, 1),

@@ -2,9 +2,9 @@
 pick, and one loose block. The fovea offers the table and a few placements on the stack's near
 edge; the learner knows the table (stable) and height 3 (everything falls) and nothing between,
 so the planner expects a placement on the table to lead to height 1 and plans it. Made, it
-moves the loose block from the table to the table and the offer stays as it was. The loop
-makes it once, then changes the setting instead of repeating it (the default demo once
-repeated it 83 times)."""
+would move the loose block from the table to the table and leave the scene as it was (the
+default demo once made it 83 times in a row). The loop sees that the only block it could move
+lies on the table and changes the setting instead."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ def _learner_that_knows_the_table_and_height_three(run_dir) -> None:
                                     mode="query"))
 
 
-def test_a_table_placement_that_changes_nothing_is_not_repeated(tmp_path):
+def test_a_table_placement_that_would_change_nothing_is_not_made(tmp_path):
     assert pick_reach(3, 0.03).max_m < OUT_OF_REACH_XY[0] < place_reach(2, 0.03).max_m
     _learner_that_knows_the_table_and_height_three(tmp_path)
     params = graph_params(seed=2)
@@ -58,7 +58,6 @@ def test_a_table_placement_that_changes_nothing_is_not_repeated(tmp_path):
         g.close()
     records = [json.loads(line) for line in (tmp_path / LOG_NAME).read_text().splitlines()]
     first, second = records[KNOWN:]
-    assert (first["mode"], first["state"], first["action"]) == ("plan", 0, 1), first
-    assert [0, 1] in first["offer"] and first["unknown_offered"] == 0, first["offer"]
-    assert second["dropped_before"].get("plan_changed_nothing") == 1, second
-    assert second["resets_before"] >= 1
+    assert first["dropped_before"].get("table_to_table") == 1, first
+    assert first["resets_before"] >= 1
+    assert ("plan", 0) not in {(r["mode"], r["state"]) for r in (first, second)}

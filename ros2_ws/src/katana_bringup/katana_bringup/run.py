@@ -124,14 +124,14 @@ def overrides_for(node_name: str, params: dict[str, dict[str, Any]]) -> list:
 
 
 def _sim_nodes(params: dict, context) -> list:
-    from katana_sim.sim_node import SimNode  # a backend's package loads only when chosen
+    from katana_sim.sim_node import SimNode  # noqa: PLC0415 - a backend's package loads only when chosen
 
     return [SimNode(context=context, parameter_overrides=overrides_for("sim_node", params))]
 
 
 def _hardware_nodes(params: dict, context) -> list:
     try:
-        from katana_driver.bringup import CAMERA, DRIVER, build_hardware_nodes  # only if chosen
+        from katana_driver.bringup import CAMERA, DRIVER, build_hardware_nodes  # noqa: PLC0415 - only if chosen
     except ImportError as exc:
         raise SystemExit(
             "katana-run: backend 'hardware' needs katana_driver (katana_driver.bringup."

@@ -19,6 +19,7 @@ parameter specs (katana_bringup.config_files).
 import os
 
 from ament_index_python.packages import get_package_share_directory
+from katana_bringup.run import default_params_files
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
@@ -26,8 +27,6 @@ from launch_ros.actions import Node
 
 
 def _nodes(context) -> list:
-    from katana_bringup.run import default_params_files
-
     backend = LaunchConfiguration("backend").perform(context)
     overlay = LaunchConfiguration("params_file").perform(context)
     files = [str(f) for f in default_params_files(backend)] + ([overlay] if overlay else [])

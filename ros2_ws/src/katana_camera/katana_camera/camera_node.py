@@ -18,6 +18,7 @@ import threading
 import time
 
 import numpy as np
+from ament_index_python.packages import get_package_share_directory
 from katana_common.messages import time_msg
 from katana_common.node_runner import run_node
 from katana_common.params import Param, ParameterError, declare_parameters
@@ -53,8 +54,6 @@ PARAMS = (
 def nominal_camera_info_path() -> str:
     """The package's nominal intrinsics (installed share folder, else the source tree)."""
     try:
-        from ament_index_python.packages import get_package_share_directory
-
         share = get_package_share_directory("katana_camera")
         path = os.path.join(share, "config", "camera_info_nominal.yaml")
         if os.path.exists(path):

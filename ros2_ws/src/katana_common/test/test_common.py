@@ -16,12 +16,16 @@ import pytest
 import rclpy
 from hypothesis import given
 from hypothesis import strategies as st
+from katana_common.action_client import ActionClient
+from katana_common.executor import MultiThreadedExecutor
 from katana_common.futures import Stopped, wait_for_future
 from katana_common.messages import duration_msg, time_msg, to_seconds
 from katana_common.node_runner import EXIT_INVALID_CONFIGURATION, EXIT_OK
 from katana_common.param_spec import Param
 from katana_common.params import ParameterError, declare_parameters
 from katana_common.testing import private_ros_env
+from katana_interfaces.action import GripperCommand
+from rclpy.action import ActionServer
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -296,11 +300,6 @@ class _SlowToRegister:
 def test_the_action_client_completes_a_goal_answered_before_its_future_is_registered():
     """rclpy#1123: with rclpy's ActionClient such a response is ignored and the future never
     completes; katana_common's client holds the executor back until the future is known."""
-    from katana_common.action_client import ActionClient
-    from katana_common.executor import MultiThreadedExecutor
-    from katana_interfaces.action import GripperCommand
-    from rclpy.action import ActionServer
-
     def execute(goal_handle):
         goal_handle.succeed()
         return GripperCommand.Result(position=goal_handle.request.command.position)

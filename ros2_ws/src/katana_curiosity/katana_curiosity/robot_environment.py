@@ -79,6 +79,7 @@ class RobotEnvironment:
         self.reset_client = None
         self._callback_group = callback_group
         self.observed_stack_heights: tuple[int, ...] = ()
+        self.observed_blocks: BlockArray | None = None
         self._cv = threading.Condition()
         self._blocks: BlockArray | None = None
         self._blocks_count = 0
@@ -251,6 +252,7 @@ class RobotEnvironment:
         # placement needs a block the arm can pick that is not part of the target stack.
         blocks = self.wait_for_blocks()
         self.observed_stack_heights = tuple(sorted(b.level for b in blocks.blocks if b.on_top))
+        self.observed_blocks = blocks
         usable = [inst for inst in usable if self._choose_block(blocks, inst, set())]
         if not usable:
             raise Unrealisable("no_usable_instance",
@@ -277,6 +279,14 @@ class RobotEnvironment:
             reach[made] = (max(b[0] for b in bands), min(b[1] for b in bands))
         best = hits[choose_base(where, choice.state, self.config.max_height + 1, tuple(reach))]
         return replace(choice, index=int(best))
+
+    def moves_a_loose_block(self, choice: Choice) -> bool:
+        """Whether a placement on the table would move a block that lies on the table itself
+        (no stack's top can be taken): that leaves every stack as it was."""
+        if choice.state != 0 or choice.index is None or self.observed_blocks is None:
+            return False
+        block = self._choose_block(self.observed_blocks, self.instances[choice.index], set())
+        return block is not None and block.level == 1
 
     def stack_heights(self) -> tuple[int, ...]:
         """The heights of the stacks in the last observed setting (a loose block is a stack of

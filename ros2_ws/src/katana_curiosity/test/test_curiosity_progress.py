@@ -36,25 +36,66 @@ def test_the_offer_is_the_set_of_distinct_pairs_in_the_setting():
     assert offer_of(setting) == {(0, 0), (3, 5), (3, 4)}
 
 
-def test_a_plan_is_futile_only_when_the_offer_after_it_is_the_same():
+def test_a_plan_is_futile_only_when_the_scene_after_it_is_the_same():
     plans = FutilePlans()
     before = frozenset({(0, 0), (3, 5)})
+    plans.observed(before)
     plans.made(before, 0, 0)
     assert not plans.observed(frozenset({(0, 0), (1, 5), (3, 5)}))  # it changed the world
     assert not plans.is_futile(before, 0, 0)
+    plans.restart()  # an experiment on an unknown pair: a new chain
+    plans.observed(before)
     plans.made(before, 0, 0)
     assert plans.observed(before)
     assert plans.is_futile(before, 0, 0)
-    assert not plans.is_futile(before, 3, 5)  # another pair in the same offer
-    assert not plans.is_futile(frozenset({(0, 0)}), 0, 0)  # the same pair in another offer
+    assert not plans.is_futile(before, 3, 5)  # another pair in the same scene
+    assert not plans.is_futile(frozenset({(0, 0)}), 0, 0)  # the same pair in another scene
+
+
+def test_a_plan_that_closes_a_cycle_of_known_plans_is_futile():
+    """Build a two-stack the arm cannot use (scene b), take it down again (back to a)."""
+    plans = FutilePlans()
+    a, b = frozenset({(0, 0), (1, 3)}), frozenset({(0, 0)})
+    plans.observed(a)
+    plans.made(a, 1, 3)
+    assert not plans.observed(b)
+    plans.made(b, 0, 0)
+    assert plans.observed(a), "back in a scene of the chain"
+    assert plans.is_futile(b, 0, 0) and not plans.is_futile(a, 1, 3)
+
+
+def test_the_plan_into_a_dead_end_is_futile():
+    plans = FutilePlans()
+    a, b = frozenset({(0, 0), (1, 3)}), frozenset({(0, 0)})
+    plans.observed(a)
+    plans.made(a, 1, 3)
+    plans.observed(b)
+    plans.dead_end()  # in b the loop had to change the setting
+    assert plans.is_futile(a, 1, 3)
+    plans.dead_end()  # said once: nothing else led here
+    assert plans.futile == {(a, 1, 3)}
+
+
+def test_what_is_futile_is_forgotten_when_the_learner_learns():
+    plans = FutilePlans()
+    scene = frozenset({(0, 0)})
+    plans.observed(scene)
+    plans.made(scene, 0, 0)
+    assert plans.observed(scene)
+    plans.restart()  # a reset: still futile
+    assert plans.is_futile(scene, 0, 0)
+    plans.learned()  # an experiment on an unknown pair
+    assert not plans.is_futile(scene, 0, 0)
 
 
 def test_a_reset_between_plan_and_observation_proves_nothing():
     plans = FutilePlans()
-    offer = frozenset({(0, 0)})
-    plans.made(offer, 0, 0)
-    plans.forget_pending()
-    assert not plans.observed(offer)
+    scene = frozenset({(0, 0)})
+    plans.observed(scene)
+    plans.made(scene, 0, 0)
+    plans.restart()
+    assert not plans.observed(scene)
+    plans.dead_end()
     assert not plans.futile
 
 

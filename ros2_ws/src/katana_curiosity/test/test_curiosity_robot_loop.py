@@ -8,14 +8,20 @@ from katana_curiosity.core.environment import Outcome, Setting
 from katana_curiosity.core.explorer import PLAN, Choice, Explorer
 from katana_curiosity.core.predictors import GAMMA
 from katana_curiosity.core.robot_loop import (
+    GIVE_UP,
+    RETRY_SAME,
+    TRY_ANOTHER,
+    UNREALISABLE,
     ExecutionRecord,
     ExperimentAborted,
     LoopPolicy,
     RobotLoop,
     Stopping,
     Unrealisable,
+    after_failed_pick_place,
     feasible_actions,
     leads_towards_unknown,
+    leave_until_moved,
     robot_bank,
     set_query_rule,
 )
@@ -177,14 +183,6 @@ def test_a_live_query_rule_change_recomputes_the_flags_not_the_weights() -> None
 
 
 def test_the_retry_policy_after_a_failed_pick_and_place() -> None:
-    from katana_curiosity.core.robot_loop import (
-        GIVE_UP,
-        RETRY_SAME,
-        TRY_ANOTHER,
-        UNREALISABLE,
-        after_failed_pick_place,
-    )
-
     table = {  # (result, goals sent so far) -> action, with 2 retries (3 goals at most)
         ("grasp_missed", 1): RETRY_SAME, ("grasp_missed", 2): RETRY_SAME,
         ("grasp_missed", 3): GIVE_UP, ("pick_unreachable", 1): TRY_ANOTHER,
@@ -199,9 +197,13 @@ def test_the_retry_policy_after_a_failed_pick_and_place() -> None:
 class SettingUntilReset:
     """Offers `before` until the first reset, then `after`; a placement stays as `stays` says."""
 
-    def __init__(self, before, after, stays) -> None:
+    def __init__(self, before, after, stays, loose_blocks_only: bool = False) -> None:
         self.before, self.after, self.stays = before, after, stays
+        self.loose_blocks_only = loose_blocks_only  # a table placement moves a loose block
         self.resets = 0
+
+    def moves_a_loose_block(self, choice: Choice) -> bool:
+        return self.loose_blocks_only and choice.state == 0
 
     def wait_until_current(self) -> None:
         pass
@@ -242,11 +244,12 @@ def _known_up_to_height_one(arm, tmp_path, setting_changes=3):
 
 
 def test_a_known_plan_leading_nowhere_changes_the_setting_instead(tmp_path) -> None:
-    """No experiment wasted: the setting offers on height 1 only action 1, which the learner knows
-    falls. The loop resets instead of making it; the new setting offers action 6, which stays
-    and grows the two-stack whose pairs are unknown, and that experiment is made."""
+    """No experiment wasted: the setting of loose blocks offers on height 1 only action 1, which
+    the learner knows falls (and the table, where a loose block would only move). The loop
+    resets instead of making either; the new setting offers action 6, which stays and grows the
+    two-stack whose pairs are unknown, and that experiment is made."""
     arm = SettingUntilReset([(0, 0), (1, 0)], [(0, 0), (1, 0), (1, 5)],
-                            stays=lambda s, a: s == 0 or a == 5)
+                            stays=lambda s, a: s == 0 or a == 5, loose_blocks_only=True)
     loop = _known_up_to_height_one(arm, tmp_path)
     loop.explorer.strategy.planner.solve()
     strategy = loop.explorer.strategy
@@ -261,7 +264,8 @@ def test_a_known_plan_leading_nowhere_changes_the_setting_instead(tmp_path) -> N
 
 
 def test_a_setting_no_reset_improves_is_used_after_the_allowed_changes(tmp_path) -> None:
-    arm = SettingUntilReset([(0, 0), (1, 0)], [(0, 0), (1, 0)], stays=lambda s, a: s == 0)
+    arm = SettingUntilReset([(0, 0), (1, 0)], [(0, 0), (1, 0)], stays=lambda s, a: s == 0,
+                            loose_blocks_only=True)
     loop = _known_up_to_height_one(arm, tmp_path, setting_changes=2)
     assert loop.run().startswith("done")
     [record] = loop.log.records
@@ -293,8 +297,6 @@ def test_the_feasibility_table_leaves_out_what_the_fovea_cannot_offer() -> None:
 
 
 def test_blocks_the_arm_cannot_take_are_left_until_they_move() -> None:
-    from katana_curiosity.core.robot_loop import after_failed_pick_place, leave_until_moved
-
     for name in ("grasp_missed", "block_slipped", "pick_unreachable"):
         action = after_failed_pick_place(name, attempts=3, retries=2)  # retries used up
         assert leave_until_moved(name, action), name
@@ -344,7 +346,7 @@ def test_a_known_plan_that_left_the_offer_unchanged_is_not_made_again(tmp_path) 
     assert arm.resets == 1, "the same plan in the same offer was refused once"
     assert second.dropped_before == {"plan_changed_nothing": 1} and second.resets_before == 1
     assert (second.mode, second.state) == ("query", 1) and second.unknown_offered == 2
-    assert loop.futile.is_futile((frozenset(table_and_three), ()), 0, 0)
+    assert not loop.futile.futile, "forgotten once the query taught the learner something"
 
 
 class CountingPlacements(SettingUntilReset):
@@ -360,18 +362,18 @@ class CountingPlacements(SettingUntilReset):
 
 
 def test_a_plan_that_changed_the_offer_is_made_again(tmp_path) -> None:
-    """The same plan is fine when its placement changed what the arm is offered."""
+    """The same plan is fine when its placement led to an offer not seen in this chain."""
 
     class Alternating(CountingPlacements):
         def observe(self) -> Setting:
-            offer = [(0, 0), (3, 0)] if self.made % 2 == 0 else [(0, 0), (3, 5)]
+            offer = [(0, 0), (3, 0), (3, 5)][: 1 + self.made]  # a new offer every time
             states, actions = zip(*offer, strict=True)
             return Setting.from_pairs(np.array(states), np.array(actions))
 
     arm = Alternating()
-    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=4)
+    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=3)
     assert loop.run().startswith("done")
-    assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0)] * 4
+    assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0)] * 3
     assert arm.resets == 0 and not loop.futile.futile
 
 
@@ -394,14 +396,72 @@ def test_when_everything_that_can_occur_is_known_the_loop_says_so_and_ends(tmp_p
 
 def test_the_same_offer_over_other_stacks_is_another_setting(tmp_path) -> None:
     """A plan that left the offer as it was but changed the stacks (a stack's top moved to the
-    table) did change the scene: it is made again."""
+    table) did change the scene: it is made again (a return to an earlier scene would not be:
+    that closes a cycle)."""
 
     class StacksChange(CountingPlacements):
         def stack_heights(self) -> tuple[int, ...]:
-            return (1, 3) if self.made % 2 == 0 else (1, 1, 2)
+            return ((1, 3), (1, 1, 2), (1, 1, 1, 1))[self.made]
 
     arm = StacksChange()
     loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=3)
     assert loop.run().startswith("done")
     assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0)] * 3
     assert arm.resets == 0 and not loop.futile.futile
+
+
+def test_a_table_placement_that_would_move_a_loose_block_changes_the_setting(tmp_path) -> None:
+    """Only a loose block could be moved: placed on the table it leaves every stack as it was,
+    so the loop changes the setting before making it."""
+
+    class OnlyLooseBlocks(SettingUntilReset):
+        def moves_a_loose_block(self, choice: Choice) -> bool:
+            return choice.state == 0 and not self.resets
+
+    arm = OnlyLooseBlocks([(0, 0), (3, 0), (3, 5)], [(0, 0), (1, 0), (1, 5)],
+                          stays=lambda s, a: True)
+    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=1)
+    assert loop.run().startswith("done")
+    [record] = loop.log.records
+    assert record.dropped_before == {"table_to_table": 1} and record.resets_before == 1
+    assert (record.mode, record.state) == ("query", 1)
+
+
+def test_known_plans_that_go_round_in_a_cycle_are_stopped(tmp_path) -> None:
+    """Build a two-stack the arm cannot use, take it down again, build it again (seen on the
+    sim for 100 experiments): once the cycle closes, its plans are refused and the setting
+    changes."""
+
+    class Cycle(CountingPlacements):
+        def observe(self) -> Setting:
+            if self.resets:
+                offer = [(0, 0), (1, 0), (1, 5)]
+            else:
+                offer = [(0, 0), (3, 0)] if self.made % 2 == 0 else [(0, 0), (3, 5)]
+            states, actions = zip(*offer, strict=True)
+            return Setting.from_pairs(np.array(states), np.array(actions))
+
+    arm = Cycle()
+    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=4)
+    assert loop.run().startswith("done")
+    # a -> b, b -> a closes the cycle (futile in b); a -> b once more, then b refuses and the
+    # plan into that dead end is futile in a too
+    assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0)] * 3 + [("query", 1)]
+    assert arm.resets == 1 and loop.log.records[3].dropped_before == {"plan_changed_nothing": 1}
+    assert not loop.futile.futile, "forgotten once the query taught the learner something"
+
+
+def test_a_refused_plan_gives_way_to_the_best_plan_worth_making(tmp_path) -> None:
+    """The planner's first choice led back into its chain before; the setting also offers
+    another placement on height 1 (action 6, known to stay): that one is made, no reset."""
+    arm = SettingUntilReset([(0, 0), (1, 0), (1, 5)], [], stays=lambda s, a: s == 0 or a == 5)
+    loop = _known_up_to_height_one(arm, tmp_path)
+    strategy = loop.explorer.strategy
+    strategy.planner.solve()
+    first = strategy.planned(arm.observe())
+    offer = frozenset({(0, 0), (1, 0), (1, 5)})
+    loop.futile.futile.add(((offer, ()), first.state, first.action))
+    assert loop.run().startswith("done")
+    [record] = loop.log.records
+    assert arm.resets == 0 and record.mode == "plan" and record.dropped_before == {}
+    assert (record.state, record.action - 1) != (first.state, first.action)

@@ -3,6 +3,9 @@ serving, and a model it cannot load stops it at start-up naming the parameter.""
 
 from __future__ import annotations
 
+import threading
+import time
+
 import numpy as np
 import pytest
 import rclpy
@@ -13,16 +16,21 @@ from katana_common.executor import MultiThreadedExecutor
 from katana_common.params import ParameterError
 from katana_curiosity.core.robot_loop import robot_bank
 from katana_curiosity.core.run_record import CHECKPOINT_NAME, save_checkpoint
+from katana_curiosity.core.skill import LearnedModel, SkillWorld, StackingSkill, build_stack
+from katana_curiosity.node_params import PARAMS as CURIOSITY_PARAMS
+from katana_curiosity.node_params import ROBOT_PARAMS
+from katana_curiosity.skill_node import PARAMS as SKILL_PARAMS
 from katana_curiosity.skill_node import SkillNode, load_model
 from katana_interfaces.action import BuildStack
+from katana_manipulation.core.pick_place import PickPlaceParams
+from katana_manipulation.pick_place_executor import PickPlaceExecutor
+from katana_manipulation.testing import place_limit_m
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
 
 @pytest.fixture(scope="module")
 def graph():
-    import threading
-
     ctx = Context()
     rclpy.init(context=ctx)
     node = SkillNode(context=ctx, parameter_overrides=[Parameter("ready_timeout_s", value=0.2)])
@@ -43,8 +51,6 @@ def graph():
 
 
 def _send(client, goal):
-    import time
-
     future = client.send_goal_async(goal)
     deadline = time.monotonic() + 20.0
     while not future.done():
@@ -100,8 +106,6 @@ def test_the_model_is_the_runs_learned_margins(tmp_path):
 def test_an_attempt_that_placed_nothing_is_chosen_anew_within_the_bound():
     """place() returning 0 (the arm lost the block) records no outcome, and counts towards
     the bound: the skill observes again."""
-    from katana_curiosity.core.skill import LearnedModel, SkillWorld, StackingSkill, build_stack
-
     class World(SkillWorld):
         def __init__(self, labels):
             self.labels, self.height, self.calls = list(labels), 1, 0
@@ -134,13 +138,6 @@ def test_the_skill_node_shares_the_curiosity_nodes_parameters_and_the_executors_
     service reaches the skill's environment, and its placement reach follows the executor's
     geometry: the far edge on a stack of three lies where the executor's planner, with the
     same grasp_offset, stops finding a plan (from its kinematics, without core.reach)."""
-    from katana_curiosity.node_params import PARAMS as CURIOSITY_PARAMS
-    from katana_curiosity.node_params import ROBOT_PARAMS
-    from katana_curiosity.skill_node import PARAMS as SKILL_PARAMS
-    from katana_manipulation.core.pick_place import PickPlaceParams
-    from katana_manipulation.pick_place_executor import PickPlaceExecutor
-    from katana_manipulation.testing import place_limit_m
-
     for spec in ROBOT_PARAMS:
         assert spec in SKILL_PARAMS and spec in CURIOSITY_PARAMS, spec.name
     shared = [Parameter("grasp_offset", value=-0.015)]  # a lower grip: a taller stack reachable

@@ -10,7 +10,9 @@ PACKAGE = "katana_description"
 def share_dir() -> Path:
     """The installed share folder (ament index), or the source tree when not installed."""
     try:
-        from ament_index_python.packages import get_package_share_directory
+        from ament_index_python.packages import (  # noqa: PLC0415 - optional: ROS-free core
+            get_package_share_directory,
+        )
 
         return Path(get_package_share_directory(PACKAGE))
     except Exception:  # not installed, or ament_index_python absent: ROS-free core tests

@@ -12,9 +12,13 @@ import os
 from typing import Any
 
 import yaml
+from ament_index_python.packages import get_package_share_directory
+from katana_camera.camera_node import CameraNode
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+
+from katana_driver.katana_driver_node import KatanaDriverNode
 
 DRIVER = "katana_driver_node"
 CAMERA = "camera_node"
@@ -23,8 +27,6 @@ CAMERA = "camera_node"
 def default_config_path() -> str:
     """config/hardware.yaml: installed share folder, else the source tree."""
     try:
-        from ament_index_python.packages import get_package_share_directory
-
         path = os.path.join(get_package_share_directory("katana_driver"), "config", "hardware.yaml")
         if os.path.exists(path):
             return path
@@ -61,10 +63,6 @@ def build_hardware_nodes(
     """katana_driver_node and camera_node with hardware.yaml's parameters overlaid by
     ``params`` (keys ``katana_driver_node`` and ``camera_node``, flat or ``ros__parameters``).
     A bad value raises an exception naming the parameter."""
-    from katana_camera.camera_node import CameraNode
-
-    from katana_driver.katana_driver_node import KatanaDriverNode
-
     merged = load_hardware_params(params)
     nodes: list[Node] = []
     try:

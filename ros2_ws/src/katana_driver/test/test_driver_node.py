@@ -20,6 +20,7 @@ from katana_driver.katana_driver_node import KatanaDriverNode
 from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.msg import JointTolerance
 from katana_interfaces.srv import ResetWorld, SetMotors
+from rcl_interfaces.srv import SetParameters
 from rclpy.action.client import GoalStatus
 from rclpy.context import Context
 from rclpy.node import Node
@@ -352,8 +353,6 @@ def test_gripper_goals_are_refused_while_the_arm_moves(graph):
 
 
 def _set(g, name, value):
-    from rcl_interfaces.srv import SetParameters
-
     client = g.client.create_client(SetParameters, f"{g.driver.get_name()}/set_parameters")
     request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
     return g.call(client, request).results[0]

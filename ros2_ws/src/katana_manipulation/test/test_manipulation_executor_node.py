@@ -12,11 +12,13 @@ from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import Pose
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from katana_common import params as common
 from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.testing import wait_until
 from katana_interfaces.action import PickAndPlace
 from katana_manipulation.core import pick_place as pp
+from katana_manipulation.core.reach import place_reach
 from katana_manipulation.pick_place_executor import PARAMS, PickPlaceExecutor
 from katana_manipulation.reach_params import REACH_PARAMS, reach_geometry
 from katana_sim.sim_node import SimNode
@@ -171,8 +173,6 @@ def test_the_executor_plans_with_its_geometry_and_checks_the_reach_with_it():
     """grasp_offset and approach_height given at start-up (as graph.yaml's `/**` gives them to
     every node) reach the planner, and the executor refuses a place that their reach excludes
     though the default geometry's reach includes it."""
-    from katana_manipulation.core.reach import place_reach
-
     ctx = Context()
     rclpy.init(context=ctx)
     try:
@@ -195,8 +195,6 @@ def test_the_executor_plans_with_its_geometry_and_checks_the_reach_with_it():
 def test_the_shared_geometry_is_one_definition_and_every_node_accepts_it():
     """REACH_PARAMS are the executor's own specs, their defaults are the planner's, and
     katana_common lets every other node receive them under `/**` without declaring them."""
-    from katana_common import params as common
-
     by_name = {p.name: p for p in PARAMS}
     assert all(by_name[p.name] is p for p in REACH_PARAMS)
     assert tuple(sorted(p.name for p in REACH_PARAMS)) == tuple(sorted(

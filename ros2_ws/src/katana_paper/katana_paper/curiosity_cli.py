@@ -187,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
             results = run_many(configs, jobs=args.jobs, progress=lambda r: bar.update(1))
     summary = save_results(results, args.out)
     if not args.no_figures:
-        from .figures import paper_figures  # matplotlib only when figures are wanted
+        from .figures import paper_figures  # noqa: PLC0415 - matplotlib only when figures are wanted
 
         paper_figures(results, args.out, jobs=args.jobs)
     wall = time.perf_counter() - start

@@ -144,7 +144,7 @@ def _fast_run(config: RunConfig, world, bank, strategy, engine: str):
     """The compiled loop of core.fastpath for this run, or None (the reference Explorer runs it)."""
     if engine == "reference":
         return None
-    from katana_curiosity.core import fastpath  # numba: imported only when a run uses it
+    from katana_curiosity.core import fastpath  # noqa: PLC0415 - numba: imported only when a run uses it
 
     if config.strategy in fastpath.FAST_STRATEGIES and fastpath.supports(world, bank):
         return fastpath.FastRun(
@@ -260,7 +260,7 @@ def run_many(
                 progress(results[i])
     else:
         if any(c.strategy in FAST_STRATEGY_NAMES for c in configs):
-            from katana_curiosity.core.fastpath import warm_up  # numba: only for fast runs
+            from katana_curiosity.core.fastpath import warm_up  # noqa: PLC0415 - numba: only for fast runs
 
             warm_up()  # load (or compile) once here: forked workers inherit the machine code
         with ProcessPoolExecutor(max_workers=jobs) as pool:

@@ -173,7 +173,7 @@ def _drop_cut_line(path: Path) -> None:
 def _ray():
     # No network at run time: Ray's usage statistics stay off (set before ray is imported).
     os.environ["RAY_USAGE_STATS_ENABLED"] = "0"
-    import ray  # heavy, and only after the setting above: ray reads it when imported
+    import ray  # noqa: PLC0415 - heavy, and only after the setting above: ray reads it when imported
 
     return ray
 
@@ -202,7 +202,7 @@ def run_sweep(
     ran = 0
     if todo:
         if any(c.strategy in FAST_STRATEGY_NAMES for c in todo):
-            from katana_curiosity.core.fastpath import warm_up  # numba: only for fast runs
+            from katana_curiosity.core.fastpath import warm_up  # noqa: PLC0415 - numba: only for fast runs
 
             warm_up()  # compiles once here rather than in every worker on a fresh checkout
         ray = _ray()
@@ -233,7 +233,7 @@ def run_sweep(
         json.dump(summary, f, indent=2)
         f.write("\n")
     if figures:
-        from .figures import sensitivity_figure  # matplotlib only when figures are wanted
+        from .figures import sensitivity_figure  # noqa: PLC0415 - matplotlib only when figures are wanted
 
         sensitivity_figure(spec, rows, out / "sensitivity.png")
     return summary

@@ -117,6 +117,12 @@ def ctx():
     print("\nbad inputs: " + ", ".join(f"{k} {v}" for k, v in sorted(TALLY.items())))
 
 
+def _tally(kind: str, refused: bool) -> None:
+    """One arbitrary input of `kind` tried, and whether the node refused it."""
+    TALLY[f"{kind} tried"] += 1
+    TALLY[f"{kind} refused"] += refused
+
+
 def _make(ctx, cls, **params):
     return cls(context=ctx, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
 
@@ -156,10 +162,9 @@ def perception(ctx):
 def test_perception_camera_info(perception, info):
     before = perception.calibration
     perception.on_camera_info(info)
-    TALLY["camera_info tried"] += 1
-    if perception.calibration is before:
-        TALLY["camera_info refused"] += 1
-    else:
+    taken = perception.calibration is not before
+    _tally("camera_info", refused=not taken)
+    if taken:
         c = perception.calibration
         assert np.isfinite(c.K).all() and np.isfinite(c.D).all()
     perception.on_camera_info(good_info())
@@ -170,8 +175,7 @@ def test_perception_camera_info(perception, info):
 def test_perception_image(perception, img):
     frames = perception.frames
     perception.on_image(img)
-    TALLY["image tried"] += 1
-    TALLY["image refused"] += perception.frames == frames
+    _tally("image", refused=perception.frames == frames)
 
 
 @SETTINGS
@@ -238,8 +242,7 @@ def test_memory_experience(memory, inst, moved, label, index):
     _seed_memory(memory)
     memory.pub.msgs.clear()
     memory.on_experience(Experience(instance=inst, moved_block=moved, label=label, index=index))
-    TALLY["experience tried"] += 1
-    TALLY["experience refused"] += not memory.pub.msgs
+    _tally("experience", refused=not memory.pub.msgs)
     _assert_finite(memory.pub.msgs)
     assert memory.memory.consistent()
 

@@ -5,6 +5,7 @@ import math
 import os
 
 import cv2
+import katana_sim.core as sim
 import numpy as np
 import pytest
 import yaml
@@ -47,7 +48,6 @@ def test_default_camera_matches_the_shared_scene():
 
 
 def test_default_camera_agrees_with_the_sim_camera_model():
-    import katana_sim.core as sim  # a declared test_depend: fail, never skip
     cam = sim.CameraModel()
     c = Calibration.from_camera_rpy(cam.K, cam.position, cam.rpy, cam.width, cam.height)
     pts = np.random.default_rng(0).uniform([0.1, -0.2, 0.0], [0.35, 0.2, 0.15], size=(50, 3))
@@ -183,7 +183,6 @@ def test_katana_calibrate_recovers_the_camera(tmp_path, capsys):
 
 
 def test_calibration_from_pybullet_views():
-    import katana_sim.core as sim  # a declared test_depend: fail, never skip
     cam = sim.CameraModel(position=(0.225, 0.01, 0.76),
                           rpy=(math.pi + 0.04, -0.03, -math.pi / 2 + 0.05))
     truth = Calibration.from_camera_rpy(cam.K, cam.position, cam.rpy)

@@ -270,34 +270,3 @@ def test_on_a_single_block_the_fovea_never_realises_action_5(x, y, yaw):
         fovea.find(1, 5)
     for action in (1, 2, 3, 4, 6):  # the search does reach every other action
         assert fovea.find(1, action).action == action
-
-
-def test_fovea_node_offers_placements_within_the_executors_reach():
-    """grasp_offset given to every node (as graph.yaml's `/**` gives it) moves the fovea's
-    placement reach with the executor's: on every stack height the far edge lies where the
-    executor's planner, with that geometry, stops finding a plan (from its kinematics, without
-    core.reach), and on a stack of three well beyond the default geometry's."""
-    import rclpy
-    from katana_manipulation.core.pick_place import PickPlaceParams
-    from katana_manipulation.pick_place_executor import PickPlaceExecutor
-    from katana_manipulation.testing import place_limit_m
-    from katana_perception.fovea_node import FoveaNode
-    from rclpy.context import Context
-    from rclpy.parameter import Parameter
-
-    shared = [Parameter("grasp_offset", value=-0.015)]  # a lower grip: a taller stack reachable
-    ctx = Context()
-    rclpy.init(context=ctx)
-    try:
-        fovea = FoveaNode(context=ctx, parameter_overrides=shared)
-        executor = PickPlaceExecutor(context=ctx, parameter_overrides=shared)
-        bands = fovea.fovea.reach_by_height
-        assert len(bands) == fovea.fovea.max_height + 1
-        for height, (near, far) in enumerate(bands):
-            limit = place_limit_m(executor.planner.p, height, inside=0.5 * (near + far))
-            assert limit - 0.01 <= far <= limit, height
-        assert bands[3][1] > place_limit_m(PickPlaceParams(), 3, inside=0.15) + 0.02
-        fovea.destroy_node()
-        executor.destroy_node()
-    finally:
-        rclpy.try_shutdown(context=ctx)

@@ -4,6 +4,7 @@ physics placements (PyBullet): 98% or more correct."""
 import math
 from collections import Counter
 
+import katana_sim.core as sim
 import numpy as np
 from katana_perception.core.calibration import Calibration
 from katana_perception.core.judge import FELL, STABLE, Judge, Placement
@@ -175,7 +176,6 @@ def physics_trial(world, rng, seed: int):
 
 
 def test_judge_on_pybullet_placements():
-    import katana_sim.core as sim  # a declared test_depend: fail, never skip
     world = sim.PhysicsSim(sim.SimConfig(num_blocks=6, seed=0))
     cam = world.camera
     calib = Calibration.from_camera_rpy(cam.K, cam.position, cam.rpy, cam.width, cam.height)

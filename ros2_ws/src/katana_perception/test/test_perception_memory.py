@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 from katana_perception.core.calibration import Calibration
+from katana_perception.core.fovea import FoveaScene, NotFound
 from katana_perception.core.memory import Block, BlockMemory, Seen
 from katana_perception.core.segmentation import Segmenter
 from katana_perception.core.synthetic import Renderer, SceneBlock, stack_block
@@ -271,14 +272,13 @@ def test_forgetting_a_block_that_is_gone():
 def test_a_block_that_fell_onto_its_side_is_remembered_so_and_offers_no_placement():
     """Rendered on its side, a block is remembered 40 mm tall on a 40 x 30 footprint; the
     fovea offers no placement on it; stood up again, it is a support again."""
-    from katana_perception.core.fovea import FoveaScene, NotFound
-    from katana_perception.messages import (
+    from katana_perception.messages import (  # noqa: PLC0415 - ROS: the other tests run without it
         blocks_from_msg,
         blocks_to_msg,
         detection_to_msg,
         seen_from_msg,
     )
-    from std_msgs.msg import Header
+    from std_msgs.msg import Header  # noqa: PLC0415 - ROS: the other tests run without it
 
     def look(scene):  # as perception and block_memory see it: through perception/detections
         seg = Segmenter()

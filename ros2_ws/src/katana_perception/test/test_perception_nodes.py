@@ -4,6 +4,9 @@ perception -> memory -> fovea pipeline on rendered images."""
 import functools
 import itertools
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -14,13 +17,26 @@ from katana_common.qos import STATE_QOS
 from katana_common.testing import call_service, spin_until
 from katana_interfaces.msg import BlockArray, Experience
 from katana_interfaces.srv import FindPlacement, JudgePlacement, ObserveSetting
+from katana_manipulation.core.pick_place import PickPlaceParams
+from katana_manipulation.pick_place_executor import PickPlaceExecutor
+from katana_manipulation.testing import place_limit_m
 from katana_perception.block_memory_node import BlockMemoryNode
 from katana_perception.core.calibration import Calibration
-from katana_perception.core.memory import Block
+from katana_perception.core.fovea import Instance, feature_vector
+from katana_perception.core.memory import Block, BlockMemory
+from katana_perception.core.segmentation import Segmenter
 from katana_perception.core.synthetic import Renderer, stack_block
 from katana_perception.fovea_node import FoveaNode
-from katana_perception.messages import instance_to_msg, rgb_to_image
+from katana_perception.messages import (
+    blocks_to_msg,
+    detection_to_msg,
+    instance_to_msg,
+    rgb_to_image,
+)
 from katana_perception.perception_node import PerceptionNode
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -139,8 +155,6 @@ def test_perception_node_publishes_detections_and_survives_bad_images(ros):
 
 
 def red_on_green_instance():
-    from katana_perception.core.fovea import Instance, feature_vector
-
     return instance_to_msg(Instance(
         state=1, action=6, bits=(True,) * 5, features=feature_vector(6), u=0.0, v=0.0,
         angle=0.0, x=0.262, y=-0.098, z=0.045, yaw=-0.3, support_ids=("green",)))
@@ -195,9 +209,6 @@ def test_judge_placement_service(ros):
 
 
 def detections_msg(scene, levels=None):
-    from katana_perception.core.segmentation import Segmenter
-    from katana_perception.messages import detection_to_msg
-
     rgb, _ = Renderer(CALIB).render(scene)
     dets = Segmenter().segment(rgb, CALIB, levels)
     return BlockArray(header=Header(frame_id="world"),
@@ -254,9 +265,6 @@ def test_block_memory_node(ros):
 
 
 def blocks_msg(blocks):
-    from katana_perception.core.memory import BlockMemory
-    from katana_perception.messages import blocks_to_msg
-
     m = BlockMemory(CALIB)
     m.set_blocks(blocks)
     return blocks_to_msg(m.snapshot(), Header(frame_id="world"))
@@ -346,10 +354,6 @@ def test_invalid_parameters_stop_the_node_naming_them(ros, cls, params, name):
     ("katana_perception.fovea_node", "fovea_size_px:=1"),
 ])
 def test_main_exits_2_naming_the_parameter(module, param):
-    import os
-    import subprocess
-    import sys
-
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="OFF")
     proc = subprocess.run([sys.executable, "-m", module, "--ros-args", "-p", param],
                           capture_output=True, text=True, timeout=60, env=env)
@@ -376,12 +380,32 @@ def test_fovea_node_with_image_masks(ros):
         (b.name,) for b in SCATTER}
 
 
+
+def test_fovea_node_offers_placements_within_the_executors_reach():
+    """grasp_offset given to every node (as graph.yaml's `/**` gives it) moves the fovea's
+    placement reach with the executor's: on every stack height the far edge lies where the
+    executor's planner, with that geometry, stops finding a plan (from its kinematics, without
+    core.reach), and on a stack of three well beyond the default geometry's."""
+    shared = [Parameter("grasp_offset", value=-0.015)]  # a lower grip: a taller stack reachable
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        fovea = FoveaNode(context=ctx, parameter_overrides=shared)
+        executor = PickPlaceExecutor(context=ctx, parameter_overrides=shared)
+        bands = fovea.fovea.reach_by_height
+        assert len(bands) == fovea.fovea.max_height + 1
+        for height, (near, far) in enumerate(bands):
+            limit = place_limit_m(executor.planner.p, height, inside=0.5 * (near + far))
+            assert limit - 0.01 <= far <= limit, height
+        assert bands[3][1] > place_limit_m(PickPlaceParams(), 3, inside=0.15) + 0.02
+        fovea.destroy_node()
+        executor.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
 def test_live_parameters_apply_and_read_only_ones_are_refused(ros):
     """Through the SetParameters service `ros2 param set` calls."""
-    from rcl_interfaces.msg import Parameter as ParameterMsg
-    from rcl_interfaces.msg import ParameterType, ParameterValue
-    from rcl_interfaces.srv import SetParameters
-
     perception = ros.make(PerceptionNode)
     memory = ros.make(BlockMemoryNode)
     fovea = ros.make(FoveaNode)

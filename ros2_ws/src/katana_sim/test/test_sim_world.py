@@ -14,6 +14,7 @@ from katana_description import arm_contract as ac
 from katana_description import models as m
 from katana_sim.core import CameraModel, ConfigError, PhysicsSim, SimConfig, TrajectoryGoal
 from katana_sim.core import controllers as ctl
+from scipy.interpolate import CubicHermiteSpline
 
 
 @pytest.fixture(scope="module")
@@ -273,8 +274,6 @@ def test_the_sampled_trajectory_is_the_cubic_hermite_spline_through_the_goal(gap
                                                                           with_velocities,
                                                                           when):
     """Checked against SciPy's CubicHermiteSpline (an independent implementation)."""
-    from scipy.interpolate import CubicHermiteSpline
-
     rng = np.random.default_rng(seed)
     times = np.cumsum(gaps)
     points = rng.uniform(-1.0, 1.0, (len(times), 5))

@@ -49,8 +49,9 @@ class Step:
 class NoRouteToUnknown(PlacementUnavailable):
     """A planned choice not worth making: its outcome is known and it leads to no unknown pair,
     so the setting should change instead (the robot loop resets it). `reason` says why:
-    no_route_to_unknown (the model sees no unknown pair beyond it) or plan_changed_nothing (the
-    same plan in the same offer left the offer as it was)."""
+    no_route_to_unknown (the model sees no unknown pair beyond it), plan_changed_nothing (the
+    same plan in the same scene left the scene as it was) or table_to_table (a placement on the
+    table would move a block that lies on the table)."""
 
     def __init__(self, message: str, reason: str = "no_route_to_unknown") -> None:
         super().__init__(message)
@@ -91,14 +92,8 @@ class PlanningStrategy(Strategy):
 
     reward: ClassVar[str] = "query"
 
-    def __init__(
-        self,
-        bank: PredictorBank,
-        top: int,
-        gamma: float = GAMMA,
-        seed: int = 0,
-        feasible: np.ndarray | None = None,
-    ) -> None:
+    def __init__(self, bank: PredictorBank, top: int, gamma: float = GAMMA, seed: int = 0,
+                 feasible: np.ndarray | None = None) -> None:
         super().__init__(bank, top, gamma, seed)
         self.setup()
         self.planner = Planner(bank, top, gamma, reward=self.phantom_reward(), feasible=feasible)
@@ -221,15 +216,7 @@ class Explorer:
             raise PlacementUnavailable("the setting offers no instance")
         if self.on_setting is not None:
             self.on_setting(setting)
-        choice = self.strategy.choose(setting, self.steps)
-        if choice.mode == PLAN and self.place_planned is not None:
-            choice = self.place_planned(setting, choice)
-        refusal = (self.worth_making(self.strategy, choice)
-                   if choice.mode == PLAN and self.worth_making is not None else None)
-        if refusal:
-            raise NoRouteToUnknown(f"the planned placement on height {choice.state}, action "
-                                   f"{choice.action + 1} is not worth making ({refusal})",
-                                   refusal)
+        choice = self._worth_making(setting, self.strategy.choose(setting, self.steps))
         (label, record), choice = self._execute(setting, choice)
         s, a = choice.state, choice.action
         margin, chi = float(self.bank.margin[s, a]), float(self.bank.chi[s, a])
@@ -237,6 +224,27 @@ class Explorer:
         self.bank.update(s, a, label)
         self.steps += 1
         return Step(s, a, choice.mode, label, margin, chi, weights, record)
+
+    def _worth_making(self, setting: Setting | ShuffledSetting, choice: Choice) -> Choice:
+        """The plan to make: the strategy's choice, or when the robot's hooks refuse it the
+        best alternative they accept; NoRouteToUnknown when they accept none."""
+        if choice.mode != PLAN:
+            return choice
+        candidates = [choice]
+        if self.worth_making is not None:
+            candidates += self.strategy.alternatives(setting, choice)[: self.max_alternatives]
+        refusal = None
+        for candidate in candidates:
+            if self.place_planned is not None:
+                candidate = self.place_planned(setting, candidate)
+            reason = (self.worth_making(self.strategy, candidate)
+                      if self.worth_making is not None else None)
+            if not reason:
+                return candidate
+            refusal = refusal or reason
+        raise NoRouteToUnknown(f"the planned placement on height {choice.state}, action "
+                               f"{choice.action + 1} is not worth making ({refusal}), nor any "
+                               "other the setting offers", refusal)
 
     def _run(self, choice: Choice) -> tuple[int, object]:
         """(label, record) of executing `choice`; a bare label has no record."""

@@ -81,32 +81,54 @@ Scene = Hashable
 
 @dataclass
 class FutilePlans:
-    """Known planned placements that left the scene unchanged, by the scene they were made in.
+    """Known planned placements that cannot lead anywhere new, by the scene they were made in.
 
     A scene is what the loop can tell settings apart by: the offer and the heights of the
-    stacks (two settings with the same offer but other stacks are different places to be).
-    Call `made(scene, height, action)` after a planned placement of a known pair, and
-    `observed(scene)` with the next scene observed without a reset in between
-    (`forget_pending` after a reset). `is_futile(scene, height, action)` then says whether
-    making it again in that scene can only lead back to the same scene.
+    stacks (two settings with the same offer but other stacks are different places to be). The
+    scenes since the last experiment on an unknown pair (or the last reset) form a chain. A
+    known plan is futile in its scene when it led back to a scene of the chain (it changed
+    nothing, or closed a cycle: on the sim, building a two-stack the arm could not use and
+    taking it down again), or when it led to a dead end, a scene in which the loop had to change
+    the setting instead of going on.
+
+    Call `observed(scene)` for every observed scene, `made(scene, height, action)` after a
+    planned placement of a known pair, `restart()` after a reset, `learned()` after an
+    experiment on an unknown pair, and `dead_end()` when the loop changes the setting instead
+    of a plan. What is futile is forgotten when the learner learns something new: one failed
+    attempt in the scene every reset makes (loose blocks) must not bar a plan for good.
     """
 
     futile: set[tuple[Scene, int, int]] = field(default_factory=set)
-    _pending: tuple[Scene, int, int] | None = None
+    _pending: tuple[Scene, int, int] | None = None  # the known plan the next scene comes from
+    _led_here: tuple[Scene, int, int] | None = None  # the known plan the current scene came from
+    _chain: list[Scene] = field(default_factory=list)
 
     def made(self, scene: Scene, height: int, action: int) -> None:
         self._pending = (scene, int(height), int(action))
 
-    def forget_pending(self) -> None:
-        self._pending = None
+    def restart(self) -> None:
+        self._pending = self._led_here = None
+        self._chain = []
+
+    def learned(self) -> None:
+        self.restart()
+        self.futile.clear()
 
     def observed(self, scene: Scene) -> bool:
-        """Note the scene after the pending plan; True when that plan changed nothing."""
+        """Note a scene; True when the known plan that led to it led back into the chain."""
         pending, self._pending = self._pending, None
-        if pending is None or pending[0] != scene:
-            return False
-        self.futile.add(pending)
-        return True
+        self._led_here = pending
+        back = pending is not None and scene in self._chain
+        if back:
+            self.futile.add(pending)
+        self._chain.append(scene)
+        return back
+
+    def dead_end(self) -> None:
+        """The current scene offered nothing worth making: the plan that led here is futile."""
+        if self._led_here is not None:
+            self.futile.add(self._led_here)
+            self._led_here = None
 
     def is_futile(self, scene: Scene, height: int, action: int) -> bool:
         return (scene, int(height), int(action)) in self.futile

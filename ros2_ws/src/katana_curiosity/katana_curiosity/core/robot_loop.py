@@ -186,11 +186,12 @@ class RobotEnvironment(Environment, Protocol):
     def reset(self) -> str: ...
 
     # optional: place_planned(setting, choice, target_height) -> choice, which instance of a
-    # planned pair to make; stack_heights() -> the heights of the stacks last observed
+    # planned pair to make; stack_heights() -> the heights of the stacks last observed;
+    # moves_a_loose_block(choice) -> whether a table placement would move a loose block
 
 
 #: why the loop changed the setting instead of making a planned placement (NoRouteToUnknown)
-SETTING_CHANGES = frozenset({"no_route_to_unknown", "plan_changed_nothing"})
+SETTING_CHANGES = frozenset({"no_route_to_unknown", "plan_changed_nothing", "table_to_table"})
 
 #: drops that leave the setting as it was: trying it again can only fail again
 STILL_SETTING_REASONS = frozenset({"no_usable_instance"})
@@ -266,8 +267,8 @@ class RobotLoop:
         self._scene = (self._offer, tuple(stacks))
         self._unknown_offered = unknown_offered(self.explorer.bank, self._offer)
         if self.futile.observed(self._scene):
-            self.logger.info("the last planned placement left the setting as it was: it is not "
-                             "made again in this setting")
+            self.logger.info("the last planned placement led back to a setting of this chain: "
+                             "it is not made again there")
 
     def _place_planned(self, setting, choice: Choice) -> Choice:
         """The environment's choice of instance, towards the lowest height above the choice
@@ -285,6 +286,8 @@ class RobotLoop:
             return None  # resets did not help (or are not wanted): follow the plan
         if self.futile.is_futile(self._scene, choice.state, choice.action):
             return "plan_changed_nothing"
+        if getattr(self.environment, "moves_a_loose_block", lambda _: False)(choice):
+            return "table_to_table"  # a new stack of one where one already lies: no change
         return None if leads_towards_unknown(strategy, choice) else "no_route_to_unknown"
 
     def _everything_known(self) -> bool:
@@ -324,6 +327,7 @@ class RobotLoop:
                 self.run_one()
                 failures = 0
             except NoRouteToUnknown as exc:
+                self.futile.dead_end()
                 self._setting_changes += 1
                 self.dropped[exc.reason] += 1
                 self.dropped_total[exc.reason] += 1
@@ -366,7 +370,7 @@ class RobotLoop:
                 np.array(step.margin_before), np.array(step.chi_before)):
             self.futile.made(self._scene, step.state, step.action)
         else:
-            self.futile.forget_pending()
+            self.futile.learned()
         self.environment.mark_scene_changed()
         self.on_experiment(record, step)
         # A scene that offers nothing but the table (a stack whose top is beyond reach and
@@ -414,7 +418,7 @@ class RobotLoop:
             # the next observation must be of the new scene, not of whatever the memory had
             # folded in when the reset returned (that depended on thread timing)
             self.environment.mark_scene_changed()
-            self.futile.forget_pending()
+            self.futile.restart()
             self.resets += 1
             self._resets_since_experiment += 1
             self.logger.info(f"reset the world ({reason}): {message}")

@@ -71,13 +71,8 @@ class SkillChoice:
 class StackingSkill:
     """Plans once for a target height; `choose` picks the best offered placement."""
 
-    def __init__(
-        self,
-        model: LearnedModel,
-        target_height: int,
-        gamma: float = GAMMA,
-        table_action: int = 1,
-    ) -> None:
+    def __init__(self, model: LearnedModel, target_height: int, gamma: float = GAMMA,
+                 table_action: int = 1) -> None:
         if not 1 <= target_height <= model.margin.shape[0]:
             raise ValueError(
                 f"target height must be in [1, {model.margin.shape[0]}], got {target_height}"

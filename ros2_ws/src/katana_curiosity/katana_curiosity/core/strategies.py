@@ -19,14 +19,8 @@ STRATEGIES: dict[str, type[Strategy]] = {
 }
 
 
-def make_strategy(
-    name: str,
-    bank: PredictorBank,
-    top: int,
-    gamma: float = GAMMA,
-    seed: int = 0,
-    feasible: np.ndarray | None = None,
-) -> Strategy:
+def make_strategy(name: str, bank: PredictorBank, top: int, gamma: float = GAMMA, seed: int = 0,
+                  feasible: np.ndarray | None = None) -> Strategy:
     """A strategy by name; `feasible` (states x actions) tells planners what can ever occur."""
     try:
         cls = STRATEGIES[name]

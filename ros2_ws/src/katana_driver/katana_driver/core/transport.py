@@ -22,6 +22,8 @@ import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
+import serial
+
 from .protocol import (
     ERROR_BYTE,
     ERROR_QUERY,
@@ -326,8 +328,6 @@ class SerialTransport(Transport):
         return f"serial {self.device}"
 
     def _connect(self):
-        import serial
-
         return serial.Serial(
             self.device,
             baudrate=self.baudrate,

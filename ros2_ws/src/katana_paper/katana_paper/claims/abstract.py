@@ -10,17 +10,21 @@ import csv
 import json
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from scipy import stats as sps
 
 from . import stats
-from .core import DEFAULT_SETTINGS, ClaimSpec, Settings, document, evaluate
+from .core import DEFAULT_SETTINGS, ClaimSpec, RunNaming, Settings, document, evaluate
 
-RUN_CSV = re.compile(r"(?P<strategy>[A-Za-z0-9]+)_seed(?P<seed>[0-9]+)\.csv")
+#: a run's CSV file name, as experiments.save_results gives it
+RUN_CSV = RunNaming("{strategy}_seed{seed}.csv",
+                    re.compile(r"(?P<strategy>[A-Za-z0-9]+)_seed(?P<seed>[0-9]+)\.csv"))
+csv_name, parse_csv_name = RUN_CSV.name, RUN_CSV.parse
 PAPER_STRATEGIES = ("q1", "q10", "conf", "random")
 #: the early stage of Figure 9 ("in the first 1000 timesteps")
 EARLY = 1000
@@ -29,17 +33,6 @@ EARLY = 1000
 SATURATED_SHARE = 0.8
 #: "closely followed by Q10": Q10's final overall KL within this relative margin of Q1's
 CLOSE_MARGIN = 0.10
-
-
-def csv_name(strategy: str, seed: int) -> str:
-    """The file name experiments.save_results gives a run's CSV."""
-    return f"{strategy}_seed{seed}.csv"
-
-
-def parse_csv_name(name: str) -> tuple[str, int] | None:
-    """(strategy, seed) of a run CSV's file name, or None for any other file."""
-    m = RUN_CSV.fullmatch(name)
-    return (m["strategy"], int(m["seed"])) if m else None
 
 
 @dataclass
@@ -255,124 +248,175 @@ RANDOM_WORST_HIGH = ("However, for the other five higher heights, its learned mo
 
 
 NAMES = {"q1": "Q1", "q10": "Q10", "conf": "Conf", "random": "Random"}
+#: Random and the three informed methods, in the order the statistics take them
+RANDOM_FIRST = ("random", "q1", "q10", "conf")
+FIG9, FIG5, FIG4 = (f"{S32}, Figure {n}" for n in (9, 5, 4))
+GREATER = stats.Claimed("greater")
+
+
+class Measure(NamedTuple):
+    """A claim of section 3.2 and how the run CSVs measure it: `value` of each run of the
+    strategies, per seed, in the order `statistic` takes them."""
+
+    spec: ClaimSpec
+    strategies: tuple[str, ...]
+    value: Callable[[AbstractRun], float]
+    statistic: stats.Statistic
+    note: str = ""
 
 
 def _values(runs: Sequence[AbstractRun], strategy: str, value) -> dict[int, float]:
     return {r.seed: value(r) for r in runs if r.strategy == strategy}
 
 
-def section_32(runs: Sequence[AbstractRun], settings: Settings = DEFAULT_SETTINGS
-               ) -> tuple[list[dict], list[dict]]:
-    """Every claim of section 3.2 the run CSVs decide, and the ones they cannot."""
-    have = {r.strategy for r in runs}
-    heights = sorted({h for r in runs for h in r.heights})
-    out: list[dict] = []
+def _overall_pair(cid: str, words: str, worse: str, better: str) -> Measure:
+    """Figure 9: `better` ends with a lower overall KL than `worse`."""
+    return Measure(ClaimSpec(cid, FIG9, words,
+                             f"{NAMES[worse]}'s {OVERALL} minus {NAMES[better]}'s", GREATER,
+                             "nats"), (worse, better), final_overall, stats.difference)
 
-    def claim(spec: ClaimSpec, strategies: Sequence[str], value, statistic, note: str = ""):
-        groups = {s: _values(runs, s, value) for s in strategies}
-        out.append(evaluate(spec, groups, statistic, settings, note))
 
-    def pair(cid, words, where, worse, better):
-        claim(ClaimSpec(cid, where, words, f"{NAMES[worse]}'s {OVERALL} minus {NAMES[better]}'s",
-                        stats.Claimed("greater"), "nats"),
-              (worse, better), final_overall, stats.difference)
+def _seed_mean(strategy: str, spec: ClaimSpec, value, note: str = "") -> Measure:
+    """A claim on one strategy's runs: the mean over its seeds of `value`."""
+    return Measure(spec, (strategy,), value, stats.mean, note)
 
-    fig9 = f"{S32}, Figure 9"
-    pair("q1-better-than-q10", Q1_BEST, fig9, "q10", "q1")
-    pair("q1-better-than-conf", Q1_BEST, fig9, "conf", "q1")
-    pair("q1-better-than-random", Q1_BEST, fig9, "random", "q1")
-    claim(ClaimSpec("q10-close-to-q1", fig9, Q1_BEST,
-                    f"(Q10's {OVERALL} - Q1's) / Q1's; closely taken as within "
-                    f"+-{CLOSE_MARGIN:.0%}", stats.Claimed("within",
-                                                          bounds=(-CLOSE_MARGIN, CLOSE_MARGIN))),
-          ("q10", "q1"), final_overall, stats.relative_difference)
-    pair("conf-better-than-random", CONF_WORDS, fig9, "random", "conf")
-    pair("conf-worse-than-q10", CONF_WORDS, fig9, "conf", "q10")
-    claim(ClaimSpec("random-least-efficient", fig9, RANDOM_LEAST,
-                    f"Random's {OVERALL} minus the highest of Q1's, Q10's and Conf's",
-                    stats.Claimed("greater"), "nats"),
-          ("random", "q1", "q10", "conf"), final_overall, stats.first_minus_others_max)
-    for h in heights[:2]:
-        claim(ClaimSpec(f"random-best-at-height-{h}", fig9, RANDOM_BEST_LOW,
-                        f"the lowest of Q1's, Q10's and Conf's final KL at height {h} minus "
-                        "Random's", stats.Claimed("greater"), "nats"),
-              ("random", "q1", "q10", "conf"), final_at(h), stats.others_min_minus_first)
-    for h in heights[2:]:
-        claim(ClaimSpec(f"random-worst-at-height-{h}", fig9, RANDOM_WORST_HIGH,
-                        f"Random's final KL at height {h} minus the highest of Q1's, Q10's "
-                        "and Conf's", stats.Claimed("greater"), "nats"),
-              ("random", "q1", "q10", "conf"), final_at(h), stats.first_minus_others_max)
-    claim(ClaimSpec("random-slower-early", fig9,
-                    "The random method, on the other hand, though making much slower progress "
-                    "than Q1 and Q10 in the first 1000 timesteps",
-                    f"Random's KL after {EARLY} experiments (mean of heights 1 and 2) minus the "
-                    "higher of Q1's and Q10's", stats.Claimed("greater"), "nats"),
-          ("random", "q1", "q10"), early_low_kl, stats.first_minus_others_max)
-    claim(ClaimSpec("random-keeps-improving", fig9,
-                    "The random method ... keeps improving its learned models",
-                    f"Random's KL after {EARLY} experiments minus its final KL (mean of heights "
-                    "1 and 2)", stats.Claimed("greater"), "nats"),
-          ("random",), low_improvement_after_early, stats.mean)
-    claim(ClaimSpec("q1-close-then-saturates", fig9,
-                    "we see that Q1 gets close to the true model exponentially fast in the "
-                    "first 1000 timesteps, then saturates",
-                    f"the share of Q1's whole KL decrease (step 0 to the last) made by step "
-                    f"{EARLY}, mean of heights 1 and 2; saturated taken as more than "
-                    f"{SATURATED_SHARE:.0%}", stats.Claimed("greater", SATURATED_SHARE)),
-          ("q1",), early_share_of_decrease, stats.mean)
-    fig5 = f"{S32}, Figure 5"
-    claim(ClaimSpec("q1-faster-at-lower-heights", fig5,
-                    "These distances tend to diminish exponentially with experience, and they "
-                    "diminish faster at lower heights, where experience is easier to get",
-                    "Spearman's rho, per Q1 seed, between height and the experiments its KL "
-                    "takes to come halfway down from its start to its final value",
-                    stats.Claimed("greater")),
-          ("q1",), half_life_order, stats.mean)
-    claim(ClaimSpec("q1-saturates-above-zero", fig5,
-                    "The saturation levels are non-zero due to the noise level in the training "
-                    "labels, the query condition scaling factor alpha, and the "
-                    "confidence-interval threshold theta",
-                    "the lowest final KL over the heights, per Q1 seed",
-                    stats.Claimed("greater"), "nats"),
-          ("q1",), min_final_kl, stats.mean)
-    fig4 = f"{S32}, Figure 4"
-    claim(ClaimSpec("q1-stages-in-order", fig4,
-                    "These plots show the developmental stages of the learning agent, where "
-                    "easier problems, such as direct exploration at height one, are learned "
-                    "first, and more difficult problems are learned later",
-                    "Spearman's rho, per Q1 seed, between height and the experiment by which "
-                    "half of that height's direct experience was made",
-                    stats.Claimed("greater")),
-          ("q1",), stage_order, stats.mean)
-    claim(ClaimSpec("q1-plans-on-lower-heights", fig4,
-                    "the acquired knowledge at lower heights is exploited for planning, and "
-                    "this planning helps the agent get to the higher heights",
-                    "mean height of Q1's direct placements minus that of its planned "
-                    "placements, per seed", stats.Claimed("greater"), "heights"),
-          ("q1",), planned_below_direct, stats.mean)
-    claim(ClaimSpec("q1-stages-overlap", fig4,
-                    "the exploration at higher heights does, in fact, start before the direct "
-                    "exploration of lower heights terminates",
-                    "the share of consecutive heights (h, h+1) whose first direct query at h+1 "
-                    "comes before the last at h, per Q1 seed (claimed: for most pairs)",
-                    stats.Claimed("greater", 0.5)),
-          ("q1",), stage_overlap, stats.mean,
-          note=f"CSV rows every {_row_step(runs)} experiments: times are known to a row")
-    missing = [s for s in PAPER_STRATEGIES if s not in have]
-    not_evaluated = [{
+
+def figure_9_overall() -> list[Measure]:
+    """Figure 9, the final overall KL: Q1 best, closely followed by Q10, then Conf, Random
+    last."""
+    close = stats.Claimed("within", bounds=(-CLOSE_MARGIN, CLOSE_MARGIN))
+    return [
+        _overall_pair("q1-better-than-q10", Q1_BEST, "q10", "q1"),
+        _overall_pair("q1-better-than-conf", Q1_BEST, "conf", "q1"),
+        _overall_pair("q1-better-than-random", Q1_BEST, "random", "q1"),
+        Measure(ClaimSpec("q10-close-to-q1", FIG9, Q1_BEST,
+                          f"(Q10's {OVERALL} - Q1's) / Q1's; closely taken as within "
+                          f"+-{CLOSE_MARGIN:.0%}", close),
+                ("q10", "q1"), final_overall, stats.relative_difference),
+        _overall_pair("conf-better-than-random", CONF_WORDS, "random", "conf"),
+        _overall_pair("conf-worse-than-q10", CONF_WORDS, "conf", "q10"),
+        Measure(ClaimSpec("random-least-efficient", FIG9, RANDOM_LEAST,
+                          f"Random's {OVERALL} minus the highest of Q1's, Q10's and Conf's",
+                          GREATER, "nats"),
+                RANDOM_FIRST, final_overall, stats.first_minus_others_max),
+    ]
+
+
+def figure_9_heights(heights: Sequence[int]) -> list[Measure]:
+    """Figure 9 per height: Random's final KL the lowest at the two lowest heights, the
+    highest at every other."""
+    best = [Measure(ClaimSpec(f"random-best-at-height-{h}", FIG9, RANDOM_BEST_LOW,
+                              f"the lowest of Q1's, Q10's and Conf's final KL at height {h} "
+                              "minus Random's", GREATER, "nats"),
+                    RANDOM_FIRST, final_at(h), stats.others_min_minus_first)
+            for h in heights[:2]]
+    return best + [Measure(ClaimSpec(f"random-worst-at-height-{h}", FIG9, RANDOM_WORST_HIGH,
+                                     f"Random's final KL at height {h} minus the highest of "
+                                     "Q1's, Q10's and Conf's", GREATER, "nats"),
+                           RANDOM_FIRST, final_at(h), stats.first_minus_others_max)
+                   for h in heights[2:]]
+
+
+def figure_9_early() -> list[Measure]:
+    """Figure 9's first EARLY experiments: Random slower but still improving after them, Q1
+    close by then and saturated."""
+    return [
+        Measure(ClaimSpec("random-slower-early", FIG9,
+                          "The random method, on the other hand, though making much slower "
+                          "progress than Q1 and Q10 in the first 1000 timesteps",
+                          f"Random's KL after {EARLY} experiments (mean of heights 1 and 2) "
+                          "minus the higher of Q1's and Q10's", GREATER, "nats"),
+                ("random", "q1", "q10"), early_low_kl, stats.first_minus_others_max),
+        _seed_mean("random", ClaimSpec(
+            "random-keeps-improving", FIG9,
+            "The random method ... keeps improving its learned models",
+            f"Random's KL after {EARLY} experiments minus its final KL (mean of heights 1 "
+            "and 2)", GREATER, "nats"), low_improvement_after_early),
+        _seed_mean("q1", ClaimSpec(
+            "q1-close-then-saturates", FIG9,
+            "we see that Q1 gets close to the true model exponentially fast in the first 1000 "
+            "timesteps, then saturates",
+            f"the share of Q1's whole KL decrease (step 0 to the last) made by step {EARLY}, "
+            f"mean of heights 1 and 2; saturated taken as more than {SATURATED_SHARE:.0%}",
+            stats.Claimed("greater", SATURATED_SHARE)), early_share_of_decrease),
+    ]
+
+
+def figure_5() -> list[Measure]:
+    """Figure 5, Q1's KL per height: faster down at lower heights, saturating above zero."""
+    return [
+        _seed_mean("q1", ClaimSpec(
+            "q1-faster-at-lower-heights", FIG5,
+            "These distances tend to diminish exponentially with experience, and they "
+            "diminish faster at lower heights, where experience is easier to get",
+            "Spearman's rho, per Q1 seed, between height and the experiments its KL takes to "
+            "come halfway down from its start to its final value", GREATER), half_life_order),
+        _seed_mean("q1", ClaimSpec(
+            "q1-saturates-above-zero", FIG5,
+            "The saturation levels are non-zero due to the noise level in the training "
+            "labels, the query condition scaling factor alpha, and the confidence-interval "
+            "threshold theta",
+            "the lowest final KL over the heights, per Q1 seed", GREATER, "nats"),
+            min_final_kl),
+    ]
+
+
+def figure_4(row_step: int) -> list[Measure]:
+    """Figure 4, Q1's developmental stages: in order of height, planning on the lower
+    heights, overlapping (`row_step`: the experiments between two CSV rows)."""
+    return [
+        _seed_mean("q1", ClaimSpec(
+            "q1-stages-in-order", FIG4,
+            "These plots show the developmental stages of the learning agent, where easier "
+            "problems, such as direct exploration at height one, are learned first, and more "
+            "difficult problems are learned later",
+            "Spearman's rho, per Q1 seed, between height and the experiment by which half of "
+            "that height's direct experience was made", GREATER), stage_order),
+        _seed_mean("q1", ClaimSpec(
+            "q1-plans-on-lower-heights", FIG4,
+            "the acquired knowledge at lower heights is exploited for planning, and this "
+            "planning helps the agent get to the higher heights",
+            "mean height of Q1's direct placements minus that of its planned placements, per "
+            "seed", GREATER, "heights"), planned_below_direct),
+        _seed_mean("q1", ClaimSpec(
+            "q1-stages-overlap", FIG4,
+            "the exploration at higher heights does, in fact, start before the direct "
+            "exploration of lower heights terminates",
+            "the share of consecutive heights (h, h+1) whose first direct query at h+1 comes "
+            "before the last at h, per Q1 seed (claimed: for most pairs)",
+            stats.Claimed("greater", 0.5)), stage_overlap,
+            note=f"CSV rows every {row_step} experiments: times are known to a row"),
+    ]
+
+
+def not_evaluated_32(have: set[str]) -> list[dict]:
+    """The claims of section 3.2 the run folder cannot decide (`have`: its strategies)."""
+    out = [{
         "id": "focus-on-hard-features", "where": f"{S32}, Figures 6-8",
         "paper": "Our system first explores much of the input space, then quickly shifts its "
                  "attention to this \"hard-to-learn\" input region, where most of its "
                  "exploration effort is spent",
         "why": "the run folder keeps experience per height, not per feature; fig6-8.png draw "
                "it for the first seed"}]
+    missing = [s for s in PAPER_STRATEGIES if s not in have]
     if missing:
-        not_evaluated.append({
-            "id": "strategies-missing", "where": fig9,
+        out.append({
+            "id": "strategies-missing", "where": FIG9,
             "paper": "we compare its performance to three other methods",
             "why": f"no runs of {', '.join(missing)} in the folder: the claims naming them "
                    "are INCONCLUSIVE (not measured)"})
-    return out, not_evaluated
+    return out
+
+
+def section_32(runs: Sequence[AbstractRun], settings: Settings = DEFAULT_SETTINGS
+               ) -> tuple[list[dict], list[dict]]:
+    """Every claim of section 3.2 the run CSVs decide, and the ones they cannot."""
+    heights = sorted({h for r in runs for h in r.heights})
+    measures = [*figure_9_overall(), *figure_9_heights(heights), *figure_9_early(),
+                *figure_5(), *figure_4(_row_step(runs))]
+    claims = [evaluate(m.spec, {s: _values(runs, s, m.value) for s in m.strategies},
+                       m.statistic, settings, m.note) for m in measures]
+    return claims, not_evaluated_32({r.strategy for r in runs})
 
 
 def _row_step(runs: Sequence[AbstractRun]) -> int:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from katana_common.cli_args import non_negative_int, positive_int
 
-from . import stats
+from . import abstract, robot, stats
 from .core import Settings, finish
 
 #: where `katana-robot claims` looks for the truth when neither --truth nor the summary names
@@ -76,12 +76,10 @@ def _options(args, defaults: dict) -> str:
 
 
 def cmd_curiosity_claims(args) -> int:
-    from .abstract import claims_document
-
     command = f"katana-curiosity claims {args.run_dir}" + _options(
         args, {"resamples": stats.RESAMPLES, "bootstrap_seed": stats.SEED})
     try:
-        doc = claims_document(args.run_dir, _settings(args), command)
+        doc = abstract.claims_document(args.run_dir, _settings(args), command)
     except (OSError, ValueError) as exc:
         print(f"katana-curiosity claims: {exc}", file=sys.stderr)
         return 2
@@ -101,10 +99,8 @@ def robot_truth_path(args, summary: dict | None) -> Path | None:
 
 
 def cmd_robot_claims(args) -> int:
-    from .robot import UNCERTAIN, claims_document, load_folder
-
     try:
-        loaded = load_folder(args.run_dir)
+        loaded = robot.load_folder(args.run_dir)
         truth = robot_truth_path(args, loaded[0])
         if truth is None:
             print("katana-robot claims: no measured truth (pass --truth, or run `katana-robot "
@@ -112,9 +108,9 @@ def cmd_robot_claims(args) -> int:
             return 2
         command = f"katana-robot claims {args.run_dir} --truth {truth}" + _options(
             args, {"resamples": stats.RESAMPLES, "bootstrap_seed": stats.SEED,
-                   "uncertain": UNCERTAIN})
-        doc = claims_document(args.run_dir, truth, _settings(args),
-                              args.uncertain or UNCERTAIN, command, loaded)
+                   "uncertain": robot.UNCERTAIN})
+        doc = robot.claims_document(args.run_dir, truth, _settings(args),
+                                    args.uncertain or robot.UNCERTAIN, command, loaded)
     except (OSError, ValueError) as exc:
         print(f"katana-robot claims: {exc}", file=sys.stderr)
         return 2

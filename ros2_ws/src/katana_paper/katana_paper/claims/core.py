@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +31,24 @@ class ClaimSpec:
     measured_as: str  # the statistic over the per-seed values, in words
     claimed: stats.Claimed
     unit: str = ""
+
+
+@dataclass(frozen=True)
+class RunNaming:
+    """How a run folder names each run's file or folder after its strategy and seed:
+    `template` (str.format with strategy and seed) and the pattern that reads a name back
+    (groups strategy and seed)."""
+
+    template: str
+    pattern: re.Pattern
+
+    def name(self, strategy: str, seed: int) -> str:
+        return self.template.format(strategy=strategy, seed=seed)
+
+    def parse(self, name: str) -> tuple[str, int] | None:
+        """(strategy, seed) of a run's name, or None for any other name."""
+        m = self.pattern.fullmatch(name)
+        return (m["strategy"], int(m["seed"])) if m else None
 
 
 @dataclass(frozen=True)

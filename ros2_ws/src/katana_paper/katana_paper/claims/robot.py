@@ -20,9 +20,12 @@ from katana_curiosity.core.run_record import CHECKPOINT_NAME, LOG_NAME, Experien
 from ..robot_truth import TruthTable, kl_to_truth
 from . import stats
 from .abstract import rank_correlation
-from .core import DEFAULT_SETTINGS, ClaimSpec, Settings, document, evaluate
+from .core import DEFAULT_SETTINGS, ClaimSpec, RunNaming, Settings, document, evaluate
 
-RUN_NAME = re.compile(r"(?P<strategy>.+)-s(?P<seed>[0-9]+)", re.DOTALL)
+#: a run's folder name, as robot_runs.run_name writes it
+RUN_NAME = RunNaming("{strategy}-s{seed}",
+                     re.compile(r"(?P<strategy>.+)-s(?P<seed>[0-9]+)", re.DOTALL))
+run_name, parse_run_name = RUN_NAME.name, RUN_NAME.parse
 #: the experiment counts at which Q1 and Random are compared ("as far as the runs go")
 CHECKPOINTS = (15, 30, 60, 120)
 #: the paper's "single run with 30 interactions" (Figure 13); as robot_paper.USABLE_AFTER
@@ -32,17 +35,6 @@ USABLE_SHARE = 0.5
 #: the band of P(stays) in the measured truth that makes a pair's outcome uncertain (the
 #: pages' `uncertain_pairs` use the same)
 UNCERTAIN = (0.05, 0.95)
-
-
-def run_name(strategy: str, seed: int) -> str:
-    """A run's folder name, as robot_runs.run_name writes it."""
-    return f"{strategy}-s{seed}"
-
-
-def parse_run_name(name: str) -> tuple[str, int] | None:
-    """(strategy, seed) of a run folder's name, or None."""
-    m = RUN_NAME.fullmatch(name)
-    return (m["strategy"], int(m["seed"])) if m else None
 
 
 @dataclass

@@ -7,7 +7,8 @@ helpers of the KL tables."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 
 from ..claims.report import counts_text, render_markdown
 from .formatting import Json, finite, get, num
@@ -64,6 +65,27 @@ def claims_section(claims: Json, summary: Json, name: str) -> str:
         return not_measured(name)
     mismatch = claims_mismatch(claims, summary)
     return render_markdown(claims) + (f"\n\n{mismatch}" if mismatch else "")
+
+
+@dataclass(frozen=True)
+class RunSection:
+    """A run's section of REPRODUCING.md, called with the run's summary and its claims.json:
+    the run's settings, what its table shows and the table, then the verdicts on the paper's
+    claims (results `<name>-claims`); what stands in for the run when the summary (results
+    `name`) is missing."""
+
+    name: str
+    settings: Callable[[Json], str]
+    table_about: str
+    table: Callable[[Json], str]
+    claims_about: str
+
+    def __call__(self, data: Json, claims: Json = None) -> str:
+        if data is None:
+            return not_measured(self.name)
+        return "\n".join([self.settings(data), "", self.table_about, "", self.table(data), "",
+                          self.claims_about, "",
+                          claims_section(claims, data, f"{self.name}-claims")])
 
 
 def claims_counts(claims: Json) -> str:

@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from . import reproducing_text as prose
-from .claims import claims_section, heights_of, ranking
+from .claims import RunSection, heights_of, ranking
 from .formatting import Json, display, experiments_of, finite, get, num, strategies_of, table
 from .provenance import made_by, not_measured, paper_command
 from .reproducing_robot import robot_section, skill_section, truth_section
@@ -29,25 +29,6 @@ def kl_table(data: Json) -> str:
     return table(("strategy", *(f"height {h}" for h in heights), "overall"), rows)
 
 
-def paper_section(data: Json, claims: Json = None) -> str:
-    """Section 3.2's run: its settings, the KL table and the verdicts on the paper's claims
-    (from its claims.json)."""
-    if data is None:
-        return not_measured("paper")
-    p = get(data, "parameters", default={}) or {}
-    seeds = get(data, "seeds", default=[]) or []
-    return "\n".join([
-        f"{made_by(paper_command(data), data)} {len(seeds)} seeds x "
-        f"{num(experiments_of(data))} steps per strategy; {p.get('n_blocks')} blocks, "
-        f"{p.get('n_features')} features per height, alpha {p.get('alpha')}, "
-        f"theta {p.get('theta')}, gamma {p.get('gamma')}.", "",
-        "Final KL divergence between the learned and the true models, mean of the seeds "
-        "(lower is better; overall is the mean over the heights):", "",
-        kl_table(data), "",
-        "The paper's claims of section 3.2, checked against this run:", "",
-        claims_section(claims, data, "paper-claims")])
-
-
 def baselines_section(data: Json) -> str:
     """The baselines' run: its settings, the KL table and the strategies ranked."""
     if data is None:
@@ -59,6 +40,21 @@ def baselines_section(data: Json) -> str:
         kl_table(data), "",
         "Best overall first: " + ", ".join(display(k) for k in ranking(strategies_of(data)))
         + "."])
+
+
+def _paper_settings(data: Json) -> str:
+    p = get(data, "parameters", default={}) or {}
+    seeds = get(data, "seeds", default=[]) or []
+    return (f"{made_by(paper_command(data), data)} {len(seeds)} seeds x "
+            f"{num(experiments_of(data))} steps per strategy; {p.get('n_blocks')} blocks, "
+            f"{p.get('n_features')} features per height, alpha {p.get('alpha')}, "
+            f"theta {p.get('theta')}, gamma {p.get('gamma')}.")
+
+
+#: section 3.2's run: its settings, the KL table and the verdicts on the paper's claims (from
+#: its claims.json)
+paper_section = RunSection("paper", _paper_settings, prose.PAPER_TABLE, kl_table,
+                           prose.PAPER_CLAIMS)
 
 
 def render_reproducing(results: Mapping) -> str:

@@ -5,7 +5,7 @@ sections because they read other files (the truth, the runs, the skill trials)."
 from __future__ import annotations
 
 from . import reproducing_text as prose
-from .claims import claims_section, heights_of, pct, uncertain_pairs
+from .claims import RunSection, heights_of, pct, uncertain_pairs
 from .formatting import NOT_RECORDED, Json, count_of, finite, get, num, strategies_of, table
 from .provenance import made_by, not_measured, robot_paper_command, skill_command, truth_command
 
@@ -92,21 +92,16 @@ def robot_runs_table(data: Json) -> str:
                   "highest stack (per seed)", "wasted"), rows)
 
 
-def robot_section(data: Json, claims: Json = None) -> str:
-    """Section 3.3's runs: their settings, the table and the verdicts on the paper's claims
-    (from their claims.json)."""
-    if data is None:
-        return not_measured("robot-paper")
-    return "\n".join([
-        made_by(robot_paper_command(data), data)
-        + f" Each run is {get(data, 'experiments')} experiments; seeds "
-        f"{', '.join(str(s) for s in get(data, 'seeds', default=[]))}.", "",
-        "KL(measured truth || learned) per height at the end of the runs and overall (the mean "
-        "over the measured heights), means of the seeds; an experiment is wasted when its pair "
-        "was known and it led nowhere:", "",
-        robot_runs_table(data), "",
-        "The paper's claims of section 3.3, against these runs:", "",
-        claims_section(claims, data, "robot-paper-claims")])
+def _robot_settings(data: Json) -> str:
+    return (made_by(robot_paper_command(data), data)
+            + f" Each run is {get(data, 'experiments')} experiments; seeds "
+            f"{', '.join(str(s) for s in get(data, 'seeds', default=[]))}.")
+
+
+#: section 3.3's runs: their settings, the table and the verdicts on the paper's claims (from
+#: their claims.json)
+robot_section = RunSection("robot-paper", _robot_settings, prose.ROBOT_TABLE, robot_runs_table,
+                           prose.ROBOT_CLAIMS)
 
 
 def skill_section(data: Json) -> str:

@@ -70,6 +70,17 @@ consecutive experiments of the first run in the paper's four columns: fovea sear
 place, observation; cf. Figures 10-12). With `--reuse`, runs whose log already holds the
 experiments are analysed again instead of being run."""
 
+#: what the KL table of section 3.2's run shows, and the verdicts after it
+PAPER_TABLE = ("Final KL divergence between the learned and the true models, mean of the seeds "
+               "(lower is better; overall is the mean over the heights):")
+PAPER_CLAIMS = "The paper's claims of section 3.2, checked against this run:"
+
+#: what the table of section 3.3's runs shows, and the verdicts after it
+ROBOT_TABLE = ("KL(measured truth || learned) per height at the end of the runs and overall (the "
+               "mean over the measured heights), means of the seeds; an experiment is wasted "
+               "when its pair was known and it led nowhere:")
+ROBOT_CLAIMS = "The paper's claims of section 3.3, against these runs:"
+
 TRUTH_ABOUT = """\
 For every (height, action), `katana-robot truth` resets the sim, stacks blocks squarely
 through the real `pick_and_place` action, asks `fovea/find_placement` for a location that

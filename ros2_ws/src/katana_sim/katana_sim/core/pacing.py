@@ -19,6 +19,7 @@ simulated time, so their sequence follows simulated time in both modes.
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 from contextlib import AbstractContextManager
 
@@ -127,8 +128,6 @@ def wait_motion(
     clock: Callable[[], float] | None = None,
 ) -> str:
     """Paced mode: wait (bounded in wall time) for the stepping thread to finish a motion."""
-    import time
-
     now = clock or time.monotonic
     deadline = now() + wall_budget_s
     while not handle.outcome.done:

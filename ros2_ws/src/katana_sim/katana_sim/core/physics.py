@@ -32,6 +32,7 @@ import math
 import tempfile
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pybullet as p
 from katana_description import arm_contract as ac
@@ -422,8 +423,6 @@ class PhysicsSim:
         evenly lit, so its colour is constant: measure it once (table alone in the scene), hide
         the table from the renderer, and paint its projected polygon wherever nothing else was
         drawn. The image is the same; a frame costs several times less."""
-        import cv2
-
         cam = self.camera
         small, _ = self._raw_render(32, 24, cam.focal_px * 32 / cam.width)
         self._table_rgb = np.median(small.reshape(-1, 3), axis=0).astype(np.uint8)
