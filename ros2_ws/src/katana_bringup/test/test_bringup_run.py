@@ -74,14 +74,14 @@ def test_shared_yaml_names_no_backend_node():
 
 def test_params_overlay_the_packaged_yaml_and_unknown_names_stop(tmp_path, capsys):
     overlay = tmp_path / "overlay.yaml"
-    overlay.write_text("fovea_node:\n  ros__parameters:\n    max_state: 2\n")
+    overlay.write_text("fovea_node:\n  ros__parameters:\n    max_height: 2\n")
     parser = run.argparse.ArgumentParser(prog="katana-run")
     files, params = run.load_graph_params(parser, "sim", [overlay])
-    assert files[-1] == overlay and params["fovea_node"]["max_state"] == 2
+    assert files[-1] == overlay and params["fovea_node"]["max_height"] == 2
     assert params["fovea_node"]["fovea_size_px"] == 40  # the packaged values stay
     assert params["sim_node"]["num_blocks"] == 4
     typo = tmp_path / "typo.yaml"
-    typo.write_text("fovea_nod:\n  ros__parameters:\n    max_state: 2\n")
+    typo.write_text("fovea_nod:\n  ros__parameters:\n    max_height: 2\n")
     with pytest.raises(SystemExit) as stop:
         run.load_graph_params(parser, "sim", [typo])
     assert stop.value.code == 2

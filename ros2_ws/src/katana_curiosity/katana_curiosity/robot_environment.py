@@ -239,7 +239,7 @@ class RobotEnvironment:
 
     def observe(self) -> Setting:
         start = time.perf_counter()
-        request = ObserveSetting.Request(max_state=self.config.max_height)
+        request = ObserveSetting.Request(max_height=self.config.max_height)
         self.settings_observed += 1
         response = self._call(self.observe_client, request)
         self.observe_s = time.perf_counter() - start

@@ -90,7 +90,7 @@ def test_skill_node_chooses_what_the_plan_says_in_a_two_stack_setting(tmp_path):
         for _ in range(3):
             measurer._build(2)  # reset, then a square stack of two through pick_and_place
             offered = {(i.state, i.action) for i in client.call(
-                observe, ObserveSetting.Request(max_state=3)).instances}
+                observe, ObserveSetting.Request(max_height=3)).instances}
             if {(2, 6), (1, 6)} <= offered:
                 return offered
         pytest.fail(f"the fovea never offered (2, 6) and (1, 6): {sorted(offered)}")
@@ -149,7 +149,7 @@ def test_the_tricky_situation_on_the_sim_starts_again_from_height_one(tmp_path):
         measurer = TruthMeasurer(client, seed=5, max_height=3, block_height_m=0.03)
         measurer._build(2, at_xy=EDGE_OF_REACH_XY)
         offered = sorted({(i.state, i.action) for i in client.call(
-            observe, ObserveSetting.Request(max_state=3)).instances})
+            observe, ObserveSetting.Request(max_height=3)).instances})
         on_two = {a for s, a in offered if s == 2}
         assert on_two and 6 not in on_two and (1, 6) in offered, offered
         folder = _model(tmp_path, good_on_two=True)

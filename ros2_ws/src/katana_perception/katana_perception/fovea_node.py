@@ -54,7 +54,7 @@ PARAMS = (
     Param("play_x", [0.14, 0.30], "Play area x interval, m.", -2.0, 2.0, length=2),
     Param("play_y", [-0.16, 0.16], "Play area y interval, m.", -2.0, 2.0, length=2),
     Param("clearance", 0.005, "Free margin around a placed block, m.", 0.0, 0.1),
-    Param("max_state", 3, "Highest stack offered for placement.", 0, 32),
+    Param("max_height", 3, "Highest stack offered for placement.", 0, 32),
     Param("table_yaw", 0.0, "Yaw of blocks placed on the table, rad.", -math.pi, math.pi),
     Param("mask_source", "memory", "'memory': block pixels are the remembered top faces "
           "re-projected; 'image': visible top blocks use their segmented pixels.",
@@ -66,14 +66,14 @@ PARAMS = (
 def _fovea_params(p) -> FoveaParams:
     """Fovea settings; the reach per stack height comes from the arm's kinematics and the
     executor's pick-and-place geometry (REACH_PARAMS, set for every node under `/**`)."""
-    bands = place_reach_table(p["max_state"], p["block_size"][2], geometry=reach_geometry(p))
+    bands = place_reach_table(p["max_height"], p["block_size"][2], geometry=reach_geometry(p))
     return FoveaParams(
         size_px=p["fovea_size_px"], offset_px=p["point_offset_px"],
         grid_step_px=p["grid_step_px"], grid_radius_px=p["grid_radius_px"],
         fine_step_px=p["fine_step_px"], table_step_m=p["table_step_m"],
         reach_by_height=tuple((b.min_m, b.max_m) for b in bands if not b.empty),
         area_x=tuple(p["play_x"]), area_y=tuple(p["play_y"]), clearance=p["clearance"],
-        max_height=p["max_state"], table_yaw=p["table_yaw"])
+        max_height=p["max_height"], table_yaw=p["table_yaw"])
 
 
 def _cross_check(values) -> str | None:
@@ -167,7 +167,7 @@ class FoveaNode(Node):
 
     def on_observe(self, req: ObserveSetting.Request, res: ObserveSetting.Response):
         try:
-            insts = self._current_scene().observe(max_height=int(req.max_state))
+            insts = self._current_scene().observe(max_height=int(req.max_height))
         except NotFound as err:
             res.success, res.message = False, str(err)
             return res
@@ -187,7 +187,7 @@ class FoveaNode(Node):
         if not (0 <= req.state <= self.fovea.max_height and 1 <= req.action <= N_ACTIONS):
             res.found = False
             res.message = (f"no placement for stack height {req.state}, action {req.action}: "
-                           f"state must be in 0..{self.fovea.max_height} (max_state), action "
+                           f"state must be in 0..{self.fovea.max_height} (max_height), action "
                            f"in 1..{N_ACTIONS}")
             return res
         try:

@@ -274,17 +274,17 @@ def _good_blocks() -> BlockArray:
 def _ready(node) -> None:
     node.on_blocks(_good_blocks())
     node.on_image(rgb_to_image(Renderer(CALIB).render(SCENE)[0], Header()))
-    assert node.on_observe(ObserveSetting.Request(max_state=255),
+    assert node.on_observe(ObserveSetting.Request(max_height=255),
                            ObserveSetting.Response()).success
 
 
 @SETTINGS
-@given(max_state=uint8)
-def test_fovea_observe(fovea, max_state):
+@given(max_height=uint8)
+def test_fovea_observe(fovea, max_height):
     _ready(fovea)
-    res = fovea.on_observe(ObserveSetting.Request(max_state=max_state), ObserveSetting.Response())
+    res = fovea.on_observe(ObserveSetting.Request(max_height=max_height), ObserveSetting.Response())
     TALLY["fovea/observe tried"] += 1
-    assert res.success and all(i.state <= max_state for i in res.instances)
+    assert res.success and all(i.state <= max_height for i in res.instances)
 
 
 @SETTINGS

@@ -274,7 +274,7 @@ def test_fovea_node_services(ros):
     ros.make(FoveaNode)
     observe = ros.helper.create_client(ObserveSetting, "fovea/observe")
     find = ros.helper.create_client(FindPlacement, "fovea/find_placement")
-    res = ros.call(observe, ObserveSetting.Request(max_state=255))
+    res = ros.call(observe, ObserveSetting.Request(max_height=255))
     assert not res.success and "memory/blocks" in res.message
     pub = ros.helper.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
     pub.publish(blocks_msg([Block("red", "red", 0.18, 0.08, 0.3),
@@ -284,7 +284,7 @@ def test_fovea_node_services(ros):
                             Block("yellow", "yellow", 0.20, 0.0, 0.5)]))
     ros.camera_info()
     for _ in range(50):
-        res = ros.call(observe, ObserveSetting.Request(max_state=255))
+        res = ros.call(observe, ObserveSetting.Request(max_height=255))
         if res.success:
             break
         ros.camera_info()
@@ -294,7 +294,7 @@ def test_fovea_node_services(ros):
     for i in res.instances:
         assert len(i.features) == 7 and i.features[i.action - 1] == 1.0 and len(i.bits) == 5
         assert len(i.support_ids) == i.state
-    low = ros.call(observe, ObserveSetting.Request(max_state=1))
+    low = ros.call(observe, ObserveSetting.Request(max_height=1))
     assert {i.state for i in low.instances} == {0, 1} and low.setting == res.setting
     bad = ros.call(find, FindPlacement.Request(state=5, action=1))
     assert not bad.found and "height 5" in bad.message
@@ -327,7 +327,7 @@ def test_pipeline_image_to_instances(ros):
             break
     got = by_id(world[-1])
     assert got["red"].level == 2 and not got["blue"].on_top
-    res = ros.call(observe, ObserveSetting.Request(max_state=255))
+    res = ros.call(observe, ObserveSetting.Request(max_height=255))
     assert res.success and {i.state for i in res.instances} == {0, 1, 2}
     assert any(list(i.support_ids) == ["blue", "red"] for i in res.instances)
 
@@ -341,7 +341,7 @@ def test_pipeline_image_to_instances(ros):
     (BlockMemoryNode, {"block_size": [0.04, 0.04, 5.0]}, "block_size"),
     (FoveaNode, {"point_offset_px": 30.0}, "offset_px"),
     (FoveaNode, {"mask_source": "dreams"}, "mask_source"),
-    (FoveaNode, {"max_state": "three"}, "max_state"),
+    (FoveaNode, {"max_height": "three"}, "max_height"),
 ])
 def test_invalid_parameters_stop_the_node_naming_them(ros, cls, params, name):
     with pytest.raises(ParameterError, match=name):
@@ -366,12 +366,12 @@ def test_fovea_node_with_image_masks(ros):
     observe = ros.helper.create_client(ObserveSetting, "fovea/observe")
     pub = ros.helper.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
     pub.publish(blocks_msg([Block(b.name, b.name, b.x, b.y, b.yaw) for b in SCATTER]))
-    res = ros.call(observe, ObserveSetting.Request(max_state=255))
+    res = ros.call(observe, ObserveSetting.Request(max_height=255))
     assert not res.success
     for _ in range(50):
         ros.camera_info()
         ros.image(SCATTER)
-        res = ros.call(observe, ObserveSetting.Request(max_state=255))
+        res = ros.call(observe, ObserveSetting.Request(max_height=255))
         if res.success:
             break
     assert res.success, res.message
@@ -431,7 +431,7 @@ def test_live_parameters_apply_and_read_only_ones_are_refused(ros):
     assert not ro.successful
     ok = set_param("block_memory_node", "cover_fraction", 0.5)
     assert ok.successful and memory.memory_params.cover_fraction == 0.5
-    for name, value in (("mask_source", "image"), ("max_state", 2), ("camera_position", 0.3)):
+    for name, value in (("mask_source", "image"), ("max_height", 2), ("camera_position", 0.3)):
         ro = set_param("fovea_node", name, value)
         assert not ro.successful, name
     assert fovea.mask_source == "memory" and fovea.fovea.max_height == 3
