@@ -78,7 +78,6 @@ class RobotEnvironment:
         self.pick_place = ActionClient(node, PickAndPlace, "pick_and_place", **kw)
         self.reset_client = None
         self._callback_group = callback_group
-        self.observed_stack_heights: tuple[int, ...] = ()
         self.observed_blocks: BlockArray | None = None
         self._cv = threading.Condition()
         self._blocks: BlockArray | None = None
@@ -251,7 +250,6 @@ class RobotEnvironment:
         # Available means executable (paper 2.2: availability comes from the known blocks): a
         # placement needs a block the arm can pick that is not part of the target stack.
         blocks = self.wait_for_blocks()
-        self.observed_stack_heights = tuple(sorted(b.level for b in blocks.blocks if b.on_top))
         self.observed_blocks = blocks
         usable = [inst for inst in usable if self._choose_block(blocks, inst, set())]
         if not usable:
@@ -291,7 +289,9 @@ class RobotEnvironment:
     def stack_heights(self) -> tuple[int, ...]:
         """The heights of the stacks in the last observed setting (a loose block is a stack of
         one), from the same memory/blocks the offer was made from."""
-        return self.observed_stack_heights
+        if self.observed_blocks is None:
+            return ()
+        return tuple(sorted(b.level for b in self.observed_blocks.blocks if b.on_top))
 
     def execute(self, state: int, action: int, index: int | None = None) -> Outcome:
         stages: dict[str, float] = {"observe_s": self.observe_s}

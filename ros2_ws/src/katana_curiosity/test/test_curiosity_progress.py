@@ -9,11 +9,11 @@ from katana_curiosity.core.predictors import GAMMA, QueryRule
 from katana_curiosity.core.progress import (
     FutilePlans,
     Realisability,
-    all_known,
     last_query,
     longest_identical_plan_streak,
     offer_of,
     unknown_offered,
+    unknown_realisable,
     wasted_experiments,
 )
 from katana_curiosity.core.robot_loop import feasible_actions, robot_bank
@@ -99,18 +99,19 @@ def test_a_reset_between_plan_and_observation_proves_nothing():
     assert not plans.futile
 
 
-def test_all_known_and_unknown_offered_follow_the_query_condition():
+def test_unknown_pairs_follow_the_query_condition():
     bank = robot_bank(max_height=2, n_actions=6, alpha=1.0, theta=0.1)
     feasible = feasible_actions(2, 6, table_action=1)
-    assert not all_known(bank, feasible, top=3)  # a fresh learner knows nothing
+    assert unknown_realisable(bank, feasible, top=3).tolist() == feasible[:3].tolist()
     assert unknown_offered(bank, frozenset({(0, 0), (1, 5)})) == 2
     rng = np.random.default_rng(0)
     for _ in range(400):  # lots of consistent labels make every pair known
         for h in range(3):
             for a in range(6):
                 bank.update(h, a, 1 if a >= 3 else -1 if rng.random() < 0.98 else 1)
-    unknown = bank.unknown[:3] & feasible[:3]
-    assert all_known(bank, feasible, top=3) == (not unknown.any())
+    expected = [[bool(feasible[h, a] and bank.rule.is_query(bank.margin[h, a], bank.chi[h, a]))
+                 for a in range(6)] for h in range(3)]
+    assert unknown_realisable(bank, feasible, top=3).tolist() == expected
     assert unknown_offered(bank, frozenset({(0, 0), (1, 5)})) == int(
         bank.unknown[0, 0]) + int(bank.unknown[1, 5])
 

@@ -216,7 +216,7 @@ class Explorer:
             raise PlacementUnavailable("the setting offers no instance")
         if self.on_setting is not None:
             self.on_setting(setting)
-        choice = self._worth_making(setting, self.strategy.choose(setting, self.steps))
+        choice = self._plan_to_make(setting, self.strategy.choose(setting, self.steps))
         (label, record), choice = self._execute(setting, choice)
         s, a = choice.state, choice.action
         margin, chi = float(self.bank.margin[s, a]), float(self.bank.chi[s, a])
@@ -225,7 +225,7 @@ class Explorer:
         self.steps += 1
         return Step(s, a, choice.mode, label, margin, chi, weights, record)
 
-    def _worth_making(self, setting: Setting | ShuffledSetting, choice: Choice) -> Choice:
+    def _plan_to_make(self, setting: Setting | ShuffledSetting, choice: Choice) -> Choice:
         """The plan to make: the strategy's choice, or when the robot's hooks refuse it the
         best alternative they accept; NoRouteToUnknown when they accept none."""
         if choice.mode != PLAN:

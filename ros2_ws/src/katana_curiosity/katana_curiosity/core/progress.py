@@ -70,9 +70,10 @@ class Realisability:
         return self.feasible & seen
 
 
-def all_known(bank: PredictorBank, feasible: np.ndarray, top: int) -> bool:
-    """No pair that can ever occur (`feasible`, heights below `top`) is unknown."""
-    return not bool((bank.unknown[:top] & feasible[:top]).any())
+def unknown_realisable(bank: PredictorBank, feasible: np.ndarray, top: int) -> np.ndarray:
+    """(heights below `top`) x actions: the pairs that can occur (`feasible`) and are unknown;
+    none left means the learner knows everything the arm can realise."""
+    return bank.unknown[:top] & feasible[:top]
 
 
 #: what a setting looks like to the loop: its offer and the heights of its stacks

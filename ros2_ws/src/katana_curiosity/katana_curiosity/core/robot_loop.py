@@ -13,9 +13,11 @@ Policy (the paper's robot had a person for this; here it is explicit):
   only if it leads towards an unknown pair (`leads_towards_unknown`); otherwise the setting
   is changed (reset) instead, at most `setting_changes` times in a row before the plan is
   followed anyway (a setting that no reset improves must not stop the run).
-- A known plan that left the offer of (height, action) pairs as it was is not made again in
-  that offer (`progress.FutilePlans`): the setting is changed instead (within the same
-  `setting_changes` bound), since making it again can only lead back to the same offer.
+- A known plan that led back to a scene seen since the last experiment on an unknown pair (it
+  changed nothing, or closed a cycle) or into a dead end is not made again in that scene
+  (`progress.FutilePlans`), nor a table placement that could only move a loose block; the
+  best other plan worth making is made instead, and only when there is none is the setting
+  changed (within the same `setting_changes` bound).
 - A pair never offered in `unrealisable_after` logged settings offering its height is one the
   arm does not realise (`progress.Realisability`): the planner puts no phantom reward on it.
 - When no pair the arm can realise is unknown, the loop says so once and, if
@@ -39,7 +41,14 @@ from .environment import Environment, PlacementUnavailable
 from .explorer import MODE_NAMES, PLAN, Choice, Explorer, NoRouteToUnknown, Step, Strategy
 from .planner import clip_margin
 from .predictors import PredictorBank, QueryRule, one_hot_with_bias
-from .progress import FutilePlans, Offer, Realisability, all_known, offer_of, unknown_offered
+from .progress import (
+    FutilePlans,
+    Offer,
+    Realisability,
+    offer_of,
+    unknown_offered,
+    unknown_realisable,
+)
 from .run_record import ExperienceLog, ExperimentRecord, InstanceRecord
 
 
@@ -270,15 +279,21 @@ class RobotLoop:
             self.logger.info("the last planned placement led back to a setting of this chain: "
                              "it is not made again there")
 
+    def _unknown_realisable(self) -> np.ndarray | None:
+        """Unknown pairs the arm can realise (the planner plans on what it realises); None for
+        a strategy that does not plan."""
+        planner = getattr(self.explorer.strategy, "planner", None)
+        if self.realisability is None or planner is None or planner.feasible is None:
+            return None
+        return unknown_realisable(self.explorer.bank, planner.feasible, planner.top)
+
     def _place_planned(self, setting, choice: Choice) -> Choice:
         """The environment's choice of instance, towards the lowest height above the choice
         where a pair the arm can realise is still unknown (the plan's next goal)."""
-        planner = getattr(self.explorer.strategy, "planner", None)
-        target = choice.state + 1
-        if planner is not None and planner.feasible is not None:
-            unknown = self.explorer.bank.unknown[: planner.top] & planner.feasible[: planner.top]
-            above = [h for h in range(choice.state + 1, planner.top) if unknown[h].any()]
-            target = above[0] if above else target
+        unknown = self._unknown_realisable()
+        above = [] if unknown is None else [
+            h for h in range(choice.state + 1, len(unknown)) if unknown[h].any()]
+        target = above[0] if above else choice.state + 1
         return self.environment.place_planned(setting, choice, target)
 
     def _worth_making(self, strategy: Strategy, choice: Choice) -> str | None:
@@ -292,10 +307,8 @@ class RobotLoop:
 
     def _everything_known(self) -> bool:
         """Whether no pair the arm can realise is unknown (said once, in the log)."""
-        planner = getattr(self.explorer.strategy, "planner", None)
-        if self.realisability is None or planner is None:
-            return False
-        if not all_known(self.explorer.bank, self.realisability.table, planner.top):
+        unknown = self._unknown_realisable()
+        if unknown is None or unknown.any():
             self.all_known_at = None
             return False
         if self.all_known_at is None:
