@@ -42,6 +42,23 @@ robot-paper: setup
 		--strategies q1,random --jobs $(JOBS) --domain-base $(ROBOT_DOMAIN) \
 		--truth docs/robot_truth.json --out runs/robot-paper
 
+# The robot study at the scale the claims of section 3.3 need: every strategy, 20 seeds, 120
+# experiments each (katana-robot paper on Ray, --address for a cluster), then its claims. It
+# resumes: an interrupted study continues each run's log and keeps the complete ones, so it can
+# run in pieces (STUDY_SEEDS=12 STUDY_STRATEGIES=q1,random is the part the README reports).
+STUDY_SEEDS ?= 20
+STUDY_EXPERIMENTS ?= 120
+STUDY_STRATEGIES ?= q1,q10,conf,random,lp,variance,rmax,egreedy
+STUDY_ADDRESS ?=
+
+.PHONY: robot-study
+robot-study: setup
+	@$(ENV) katana-robot paper --seeds $(STUDY_SEEDS) --experiments $(STUDY_EXPERIMENTS) \
+		--strategies $(STUDY_STRATEGIES) --jobs $(JOBS) --domain-base $(ROBOT_DOMAIN) --reuse \
+		$(if $(STUDY_ADDRESS),--address $(STUDY_ADDRESS)) \
+		--truth docs/robot_truth.json --out runs/robot-study
+	@$(ENV) katana-robot claims runs/robot-study --truth docs/robot_truth.json
+
 bench: setup
 	@$(ENV) python bench/run.py
 

@@ -24,29 +24,38 @@ import cv2
 import numpy as np
 import rclpy
 from katana_common.cli_args import (
-    non_negative_int,
-    positive_int,
+    CommandLineError,
+    from_spec,
+    parse_command_line,
     positive_seconds,
     writable_folder,
 )
 from katana_common.executor import MultiThreadedExecutor
-from katana_common.node_runner import spin_nodes
+from katana_common.node_runner import EXIT_INVALID_CONFIGURATION, spin_nodes
+from katana_common.param_files import ParamSet
 from katana_common.qos import STATE_QOS
+from katana_curiosity.node_params import PARAMS as CURIOSITY_PARAMS
 from katana_description.models import lies_flat
 from katana_interfaces.msg import BlockArray
+from katana_sim.sim_params import PARAMS as SIM_PARAMS
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from .frames import ExperienceFrames, Frames, draw_placement
+from .graph_params import LAYERS
 from .run import (
     EXECUTOR_THREADS,
     KATANA_RUN_SHUTDOWN_LIMIT_S,
     add_graph_arguments,
     build_nodes,
-    default_params_files,
-    load_params,
+    graph_params_check,
+    split_ros_args,
 )
 from .run_report import append_session, read_sessions, write_report
+
+#: the specs of the parameters the options set: an option is checked by its parameter's rule
+_CURIOSITY = {p.name: p for p in CURIOSITY_PARAMS}
+_SIM = {p.name: p for p in SIM_PARAMS}
 
 FRAMES_FIRST = 6  # frames of the first experiments, then one every FRAMES_EVERY
 FRAMES_EVERY = 25
@@ -104,38 +113,60 @@ class FrameRecorder:
         self.saved.append(path)
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="katana-demo", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--experiments", type=positive_int, default=200,
-                        help="experiments to run")
+    parser.add_argument("--experiments", type=from_spec(_CURIOSITY["max_experiments"],
+                                                        at_least=1),
+                        default=200, help="experiments to run")
     parser.add_argument("--out", type=writable_folder, default=None,
                         help="run folder (default runs/demo-<time>; an existing one resumes)")
-    parser.add_argument("--strategy", default=None, help="q1 (default), q10, conf or random")
-    parser.add_argument("--seed", type=non_negative_int, default=0,
+    parser.add_argument("--strategy", type=from_spec(_CURIOSITY["strategy"]), default=None,
+                        help=f"{', '.join(_CURIOSITY['strategy'].choices)} (default: the "
+                        "curiosity node's, q1)")
+    parser.add_argument("--seed", type=from_spec(_CURIOSITY["seed"]), default=0,
                         help="seed of the sim and the learner")
     add_graph_arguments(parser)  # --backend, --params (overlays), --record
-    parser.add_argument("--real-time-factor", type=float, default=0.0,
+    parser.add_argument("--real-time-factor", type=from_spec(_SIM["real_time_factor"]),
+                        default=0.0,
                         help="sim pace: 0 as fast as possible (default), 1 wall-clock")
     parser.add_argument("--timeout", type=positive_seconds, default=None, metavar="S",
                         help="give up after S wall seconds (default: 30 s per experiment)")
     return parser
 
 
-def demo_params(args, out: Path) -> dict:
-    """The packaged parameters and the overlays, with this run's folder, length and seed."""
-    params = load_params([*default_params_files(args.backend), *args.params])
-    curiosity = params.setdefault("curiosity_node", {})
-    curiosity.update(run_dir=str(out), max_experiments=args.experiments, seed=args.seed)
+def demo_options(args, params: ParamSet) -> None:
+    """This run's folder, length and seed over the packaged parameters and the overlays (each
+    entry named by its option, so that a refusal names the option)."""
+    curiosity = "curiosity_node"
+    params.set(curiosity, "run_dir", str(args.out), "--out")
+    params.set(curiosity, "max_experiments", args.experiments, "--experiments")
+    params.set(curiosity, "seed", args.seed, "--seed")
     if args.strategy:
-        curiosity["strategy"] = args.strategy
+        params.set(curiosity, "strategy", args.strategy, "--strategy")
     if not args.params:
         # Headless: nobody looks at the debug image (its drawing would take the shared
         # process's CPU from the physics).
-        params.setdefault("perception_node", {})["publish_debug_image"] = False
+        params.set("perception_node", "publish_debug_image", False, "--params")
     if args.backend == "sim":
-        params.setdefault("sim_node", {}).update(seed=args.seed,
-                                                 real_time_factor=args.real_time_factor)
-    return params
+        params.set("sim_node", "seed", args.seed, "--seed")
+        params.set("sim_node", "real_time_factor", args.real_time_factor, "--real-time-factor")
+
+
+def _default_out(args) -> None:
+    """The run folder: --out, else runs/demo-<time> (checked as --out would be)."""
+    if args.out is None:
+        try:
+            args.out = writable_folder(f"runs/demo-{datetime.now():%Y%m%d-%H%M%S}")
+        except argparse.ArgumentTypeError as err:
+            raise CommandLineError("--out", f"(default runs/demo-<time>) {err}") from None
+
+
+def parse(argv: list[str] | None) -> tuple[argparse.Namespace, list[str]]:
+    """Every option and parameter file checked (cli_args.parse_command_line): a refusal exits
+    2 before anything is created. Returns the arguments and the ROS arguments."""
+    own, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
+    checks = [_default_out, graph_params_check(ros_args, lambda _: LAYERS, demo_options)]
+    return parse_command_line(build_parser(), own, checks), ros_args
 
 
 def report(out: Path, args, learner, recorder: FrameRecorder, finished: bool,
@@ -166,22 +197,22 @@ def report(out: Path, args, learner, recorder: FrameRecorder, finished: bool,
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = _parser()
-    args, ros_args = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
-    if args.real_time_factor < 0:
-        parser.error("--real-time-factor must be >= 0")
-    out = args.out or Path("runs") / f"demo-{datetime.now():%Y%m%d-%H%M%S}"
+    args, ros_args = parse(argv)
+    out: Path = args.out
+    new_folder = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    params = demo_params(args, out)
+    params = args.param_set.values(skip_option="--ros-args")  # rclpy reads those itself
 
     # katana-demo handles SIGINT/SIGTERM itself (spin_nodes): the nodes stop before the context
-    rclpy.init(args=ros_args, signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(args=["katana-demo", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
     try:
         nodes = build_nodes(args.backend, params, record=args.record)
-    except Exception as exc:
-        print(f"katana-demo: {exc}", file=sys.stderr)
+    except Exception as exc:  # what only a node finds (a run folder it cannot resume)
+        print(f"katana-demo: {' '.join(str(exc).split())}", file=sys.stderr)
         rclpy.try_shutdown()
-        return 2
+        if new_folder and not any(out.iterdir()):
+            out.rmdir()
+        return EXIT_INVALID_CONFIGURATION
     recorder_node = Node("demo_frame_recorder")
     recorder = FrameRecorder(recorder_node, out / "frames", ground_truth=args.backend == "sim")
     learner = next(n for n in nodes if n.get_name() == "curiosity_node")

@@ -6,10 +6,13 @@
 Loads standard ROS parameter YAML files (`node_name: {ros__parameters: {...}}`, with `/**` for
 every node): the packaged ones (config/graph.yaml, then the backend's: backend_sim.yaml and
 sim.yaml, or backend_hardware.yaml), overlaid by each `--params FILE` in order. Each node gets
-its parameters as overrides (an unknown name stops it, naming the name), and every node spins
-on one MultiThreadedExecutor. launch/sim.launch.py starts the same nodes, with the same YAML,
-as separate processes for users with a full ROS 2 install. `--record F.mcap` adds a recorder
-of the run's topics (rosbag2 MCAP; katana_bringup.recorder_node).
+its parameters as overrides, and every node spins on one MultiThreadedExecutor. Every option,
+every `--params` file and the parameters of `--ros-args` are checked before any node is built,
+by the rules the nodes apply (graph_params): a section of no node, an undeclared name, a value
+of the wrong type or outside its spec is refused naming the file, the line and the key.
+launch/sim.launch.py starts the same nodes, with the same YAML, as separate processes for
+users with a full ROS 2 install. `--record F.mcap` adds a recorder of the run's topics (rosbag2
+MCAP; katana_bringup.recorder_node).
 
 The graph has three layers: "arm" (the backend's arm and camera nodes, and the pick-and-place
 executor), "perception" (perception, block memory and fovea nodes) and "curiosity" (the
@@ -19,18 +22,24 @@ learner). `--layers` starts a subset, e.g. only the arm for a manipulation check
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import rclpy
-import yaml
 from ament_index_python.packages import get_package_share_directory
-from katana_common.cli_args import positive_seconds
+from katana_common.cli_args import (
+    CommandLineError,
+    comma_list,
+    new_file,
+    parse_command_line,
+    positive_seconds,
+    readable_file,
+)
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.node_runner import EXIT_INVALID_CONFIGURATION, spin_nodes
+from katana_common.param_files import ParamFileError, ParamSet, read_param_files
 from katana_common.params import ParameterError
 from katana_curiosity.curiosity_node import CuriosityNode
 from katana_manipulation.pick_place_executor import PickPlaceExecutor
@@ -40,11 +49,17 @@ from katana_perception.perception_node import PerceptionNode
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
+from .graph_params import (
+    BACKENDS,
+    LAYERS,
+    add_ros_args,
+    check_graph,
+    hardware_base,
+    refusal,
+)
 from .recorder_node import RecorderNode
 
 PACKAGE = "katana_bringup"
-BACKENDS = ("sim", "hardware")
-LAYERS = ("arm", "perception", "curiosity")
 #: threads of the shared executor: action callbacks that wait on other actions each hold one
 EXECUTOR_THREADS = 8
 #: longest wait for the whole graph's threads after a stop request, s (katana-run ends in 3 s)
@@ -72,49 +87,12 @@ def default_params_files(backend: str = "sim") -> list[Path]:
     return files
 
 
-#: the nodes each backend starts (a YAML section for another name is a typo)
-NODE_NAMES = {
-    "sim": ("sim_node",),
-    "hardware": ("katana_driver_node", "camera_node"),
-}
-GRAPH_NODES = ("pick_place_executor", "perception_node", "block_memory_node", "fovea_node",
-               "curiosity_node", "run_recorder")
-
-
-def unknown_sections(backend: str, params: dict[str, dict[str, Any]]) -> list[str]:
-    """Node sections of the YAML that name no node of this backend's graph."""
-    known = {"/**", *NODE_NAMES.get(backend, ()), *GRAPH_NODES}
-    return sorted(name for name in params if name not in known)
-
-
 def load_params(paths: list[str | Path]) -> dict[str, dict[str, Any]]:
     """Merge ROS parameter YAML files into {node_name: {param: value}}; later files win.
-    The wildcard entry `/**` (or `**`) applies to every node and is kept under '/**'."""
-    merged: dict[str, dict[str, Any]] = {}
-    for path in paths:
-        with open(path, encoding="utf-8") as fh:
-            data = yaml.safe_load(fh) or {}
-        if not isinstance(data, dict):
-            raise ValueError(f"{path}: expected a mapping of node names")
-        for node, body in data.items():
-            if not isinstance(body, dict) or "ros__parameters" not in body:
-                raise ValueError(f"{path}: '{node}' has no ros__parameters mapping")
-            name = "/**" if node in ("/**", "**") else str(node).lstrip("/")
-            params = body["ros__parameters"] or {}
-            merged.setdefault(name, {}).update(_flatten(params))
-    return merged
-
-
-def _flatten(params: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """Nested mappings become dotted names, as ROS 2 does with parameter YAML."""
-    out: dict[str, Any] = {}
-    for key, value in params.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict):
-            out.update(_flatten(value, name + "."))
-        else:
-            out[name] = value
-    return out
+    The wildcard entry `/**` (or `**`) applies to every node and is kept under '/**'; nested
+    mappings become dotted names. A file that is not parameter YAML raises ParamFileError (a
+    ValueError) naming the file and the line."""
+    return read_param_files(paths).values()
 
 
 def overrides_for(node_name: str, params: dict[str, dict[str, Any]]) -> list:
@@ -203,42 +181,24 @@ def build_nodes(
     return nodes
 
 
+_layer_names = comma_list(LAYERS, "layer")
+
+
 def _layers(text: str) -> list[str]:
-    layers = [x.strip() for x in text.split(",") if x.strip()]
-    bad = [x for x in layers if x not in LAYERS]
-    if not layers or bad:
-        raise argparse.ArgumentTypeError(f"choose from {','.join(LAYERS)}, got {text!r}")
-    return layers
-
-
-def _readable_yaml(text: str) -> Path:
-    path = Path(text)
-    if not path.is_file() or not os.access(path, os.R_OK):
-        raise argparse.ArgumentTypeError(f"a readable parameter YAML file, got {text!r}")
-    return path
-
-
-def _new_mcap(text: str) -> Path:
-    path = Path(text)
-    if path.suffix != ".mcap" or path.is_dir():
-        raise argparse.ArgumentTypeError(f"a file name ending in .mcap, got {text!r}")
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir() or not os.access(folder, os.W_OK):
-        raise argparse.ArgumentTypeError(f"a file in a writable folder, got {text!r}")
-    if path.exists() and not os.access(path, os.W_OK):
-        raise argparse.ArgumentTypeError(f"a writable file, got {text!r}")
-    return path
+    return [x.strip() for x in _layer_names(text).split(",") if x.strip()]
 
 
 def add_graph_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options katana-run and katana-demo share (each validated while parsing)."""
+    """The options katana-run and katana-demo share (each validated while parsing; the
+    --params files by `graph_params_check`, once the backend is known)."""
     parser.add_argument("--backend", choices=BACKENDS, default="sim")
     parser.add_argument("--params", action="append", default=[], metavar="FILE",
-                        type=_readable_yaml,
+                        type=readable_file,
                         help="ROS parameter YAML overlaid on the packaged config (repeatable; "
                         "later files win)")
-    parser.add_argument("--record", type=_new_mcap, default=None, metavar="FILE.mcap",
-                        help="record the run's topics into a rosbag2 MCAP file")
+    parser.add_argument("--record", type=new_file(".mcap"), default=None, metavar="FILE.mcap",
+                        help="record the run's topics into a rosbag2 MCAP file (in an existing "
+                        "folder)")
 
 
 def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
@@ -249,19 +209,50 @@ def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
     return argv, []
 
 
+def graph_param_set(backend: str, overlays: list[Path], ros_args: list[str] = (),
+                    layers=LAYERS, record: Path | None = None,
+                    options: Callable[[ParamSet], None] | None = None) -> ParamSet:
+    """The packaged YAML overlaid by `overlays`, the parameters of `ros_args` and what
+    `options(params)` sets, checked as the nodes will check them (layers, record: the nodes
+    started). Raises CommandLineError naming the option (and the file, line and key)."""
+    try:
+        params = ParamSet()
+        # rclpy gives a node the ROS arguments' parameters below its explicit overrides (the
+        # files): they are read first, so that an entry a file replaces is not checked either
+        add_ros_args(params, list(ros_args))
+        read_param_files(default_params_files(backend), option="--backend", into=params)
+        read_param_files(overlays, into=params)
+        if record is not None:
+            params.set("run_recorder", "path", str(record), "--record")
+        if options is not None:
+            options(params)
+        check_graph(params, backend, layers, record is not None, hardware_base(backend))
+    except ParamFileError as err:
+        raise refusal(err) from None
+    return params
+
+
+def graph_params_check(ros_args: list[str], layers_of=lambda args: args.layers,
+                       options: Callable[[argparse.Namespace, ParamSet], None] | None = None):
+    """The check (cli_args.parse_command_line) of --params, --ros-args and the parameters the
+    options set: it leaves the checked ParamSet in `args.param_set`."""
+
+    def check(args: argparse.Namespace) -> None:
+        args.param_set = graph_param_set(
+            args.backend, args.params, ros_args, layers_of(args), args.record,
+            None if options is None else lambda params: options(args, params))
+
+    return check
+
+
 def load_graph_params(parser: argparse.ArgumentParser, backend: str,
                       overlays: list[Path]) -> tuple[list[Path], dict[str, dict[str, Any]]]:
     """The packaged YAML overlaid by `overlays`; a bad file ends in parser.error (exit 2)."""
-    files = [*default_params_files(backend), *overlays]
     try:
-        params = load_params(files)
-    except (OSError, ValueError, yaml.YAMLError) as exc:
-        parser.error(f"--params: cannot read parameters: {_one_line(exc)}")
-    unknown = unknown_sections(backend, params)
-    if unknown:
-        parser.error(f"--params: no node named {', '.join(unknown)} in the {backend} graph; "
-                     f"valid: /**, {', '.join((*NODE_NAMES[backend], *GRAPH_NODES))}")
-    return files, params
+        params = graph_param_set(backend, overlays)
+    except CommandLineError as err:
+        parser.error(_one_line(str(err)))
+    return [*default_params_files(backend), *overlays], params.values()
 
 
 def _one_line(exc: BaseException) -> str:
@@ -269,16 +260,21 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(text.split())
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="katana-run", description=__doc__.split("\n\n")[0])
     add_graph_arguments(parser)
     parser.add_argument("--layers", type=_layers, default=list(LAYERS), metavar="L[,L]",
                         help=f"which parts of the graph to start (default: {','.join(LAYERS)})")
     parser.add_argument("--duration", type=positive_seconds, default=None, metavar="S",
                         help="stop after S wall seconds (default: run until Ctrl-C)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
     own, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
-    args = parser.parse_args(own)
-    files, params = load_graph_params(parser, args.backend, args.params)
+    args = parse_command_line(build_parser(), own, [graph_params_check(ros_args)])
+    files = [*default_params_files(args.backend), *args.params]
+    params = args.param_set.values(skip_option="--ros-args")  # rclpy reads those itself
 
     # katana-run handles SIGINT/SIGTERM itself (spin_nodes): the nodes stop before the context
     rclpy.init(args=["katana-run", *ros_args], signal_handler_options=SignalHandlerOptions.NO)

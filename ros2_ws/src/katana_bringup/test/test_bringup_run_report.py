@@ -148,7 +148,7 @@ def test_the_summary_says_whether_the_run_kept_learning(tmp_path) -> None:
     script = [("query", 1, unknown, {}, 0), ("plan", 1, known, {}, 0),
               ("query", 2, unknown, {}, 0)]
     script += [("plan", 0, known, {}, 0)] * 4
-    script += [("query", 1, unknown, {"plan_changed_nothing": 1, "grasp_missed": 1}, 1)]
+    script += [("query", 1, unknown, {"plan_leads_nowhere": 1, "grasp_missed": 1}, 1)]
     for i, (mode, state, before, dropped, resets) in enumerate(script):
         log.append(ExperimentRecord(index=i, state=state, action=1, label=1, mode=mode,
                                     available=[0, 3], dropped_before=dropped,
@@ -158,4 +158,4 @@ def test_the_summary_says_whether_the_run_kept_learning(tmp_path) -> None:
                                              "indices": [3, 4, 5, 6]}
     assert summary["longest_identical_plan_streak"] == 4
     assert summary["last_query"] == 7
-    assert summary["setting_changes_by_reason"] == {"plan_changed_nothing": 1}
+    assert summary["setting_changes_by_reason"] == {"plan_leads_nowhere": 1}

@@ -16,6 +16,7 @@ exits, so a stuck callback cannot keep a launch waiting for its SIGKILL.
 from __future__ import annotations
 
 import os
+import re
 import signal
 import sys
 import threading
@@ -26,6 +27,7 @@ import rclpy
 from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
 
 from .executor import MultiThreadedExecutor
 from .params import ParameterError
@@ -47,7 +49,12 @@ def run_node(
     executor_factory: Callable[[], Executor] = MultiThreadedExecutor,
     shutdown_timeout_s: float = 1.0,
 ) -> int:
-    """Create the node, spin it until a signal, stop it; return the exit code."""
+    """Create the node, spin it until a signal, stop it; return the exit code. A command line
+    rclpy cannot parse, or one with anything but ROS arguments, is refused first (exit 2)."""
+    problem = ros_args_problem(sys.argv if args is None else args)
+    if problem:
+        print(f"usage: {name} [--ros-args ...]\n{name}: error: {problem}", file=sys.stderr)
+        return EXIT_INVALID_CONFIGURATION
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = _stop_on_signals()
     try:
@@ -58,6 +65,20 @@ def run_node(
         return EXIT_INVALID_CONFIGURATION
     return spin_nodes([node], name, executor=executor_factory(), stop=stop,
                       shutdown_timeout_s=shutdown_timeout_s)
+
+
+def ros_args_problem(argv: Sequence[str]) -> str | None:
+    """Why rclpy.init would refuse `argv` (argv[0] is the program), or the arguments in it that
+    are not ROS arguments; None when it is fine. Nothing is initialised."""
+    try:
+        rest = remove_ros_args(list(argv) or ["prog"])[1:]
+    except RuntimeError as err:  # rclpy's RCLInvalidROSArgsError, UnknownROSArgsError
+        text = re.sub(r", at /\S+", "", " ".join(str(err).split()))
+        if type(err).__name__ == "UnknownROSArgsError":  # its text is the list of them
+            names = re.findall(r"'([^']*)'", text)
+            text = f"unknown ROS argument(s) {' '.join(names)}"
+        return f"argument --ros-args: {text or 'invalid ROS arguments'}"
+    return f"unrecognized arguments: {' '.join(rest)}" if rest else None
 
 
 def _stop_on_signals() -> threading.Event:

@@ -51,8 +51,8 @@ class Param:
         if self.choices is not None:
             parts.append("one of " + ", ".join(repr(c) for c in self.choices))
         if self.low is not None or self.high is not None:
-            lo = "-inf" if self.low is None else f"{self.low:g}"
-            hi = "inf" if self.high is None else f"{self.high:g}"
+            lo = "-inf" if self.low is None else _number(self.low)
+            hi = "inf" if self.high is None else _number(self.high)
             parts.append(f"in [{lo}, {hi}]")
         if self.nonempty:
             parts.append("not empty")
@@ -94,9 +94,9 @@ class Param:
             if not math.isfinite(value):
                 return f"{value!r} is not finite"
             if self.low is not None and value < self.low:
-                return f"{value!r} is below {self.low:g}"
+                return f"{value!r} is below {_number(self.low)}"
             if self.high is not None and value > self.high:
-                return f"{value!r} is above {self.high:g}"
+                return f"{value!r} is above {_number(self.high)}"
         if isinstance(value, str) and self.nonempty and not value:
             return "must not be empty"
         if self.choices is not None and value not in self.choices:
@@ -124,6 +124,13 @@ class Param:
                     )
                 ]
         return desc
+
+
+def _number(bound: float) -> str:
+    """A bound as people write it: 2147483647 and 10000000 whole, 0.001 short."""
+    if float(bound).is_integer() and abs(bound) < 1e16:
+        return str(int(bound))
+    return f"{bound:g}"
 
 
 _WIDTH = 99

@@ -25,23 +25,11 @@ from rclpy.exceptions import (
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from .param_files import GRAPH_WIDE_GEOMETRY, TOLERATED_UNDECLARED
 from .param_spec import Param
-from .scene import SCENE_PARAMS
 
-__all__ = ["Param", "ParameterError", "NodeParameters", "declare_parameters"]
-
-#: the pick-and-place geometry graph.yaml sets for every node under `/**`: the executor plans
-#: with it and the nodes that offer placements compute the arm's reach from it (the specs are
-#: katana_manipulation.reach_params.REACH_PARAMS; a test there checks that the names agree)
-GRAPH_WIDE_GEOMETRY = ("approach_height", "grasp_offset")
-#: names a node may be given without declaring them: rclpy's own, and the graph-wide facts that
-#: graph.yaml sets for every node under `/**` (a node that does not use them ignores them): the
-#: scene and the pick-and-place geometry
-_TOLERATED_UNDECLARED = frozenset(
-    ("use_sim_time", "start_type_description_service", *GRAPH_WIDE_GEOMETRY)
-    + tuple(p.name for p in SCENE_PARAMS)
-)
-
+__all__ = ["Param", "ParameterError", "NodeParameters", "declare_parameters",
+           "GRAPH_WIDE_GEOMETRY"]
 
 class ParameterError(ValueError):
     """An invalid parameter; the message names it and its valid values."""
@@ -100,6 +88,9 @@ class NodeParameters(Mapping):
             raise ParameterError(
                 f"parameter '{spec.name}': {_first_line(exc)}; valid: {spec.valid_text()}"
             ) from exc
+        if value is None:  # a YAML key without a value: rclpy passes it through as not set
+            raise ParameterError(f"parameter '{spec.name}' has no value; valid: "
+                                 f"{spec.valid_text()}")
         if isinstance(value, tuple | list) or type(value).__name__ == "array":
             value = list(value)
         reason = spec.problem(value)
@@ -115,7 +106,7 @@ class NodeParameters(Mapping):
             name
             for name in overrides
             if name not in self._specs
-            and name not in _TOLERATED_UNDECLARED
+            and name not in TOLERATED_UNDECLARED  # (param_files: the same rule for files)
             and not name.startswith("qos_overrides.")
             and not self._node.has_parameter(name)
         )

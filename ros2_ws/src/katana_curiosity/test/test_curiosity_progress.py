@@ -1,4 +1,4 @@
-"""core.progress: futile plans, everything known, and the run's waste figures from the log."""
+"""core.progress: where plans lead, everything known, and the run's waste figures from the log."""
 
 import numpy as np
 from hypothesis import given
@@ -7,7 +7,7 @@ from katana_curiosity.core.environment import Setting
 from katana_curiosity.core.planner import Planner
 from katana_curiosity.core.predictors import GAMMA, QueryRule
 from katana_curiosity.core.progress import (
-    FutilePlans,
+    PlanOutcomes,
     Realisability,
     last_query,
     longest_identical_plan_streak,
@@ -36,67 +36,154 @@ def test_the_offer_is_the_set_of_distinct_pairs_in_the_setting():
     assert offer_of(setting) == {(0, 0), (3, 5), (3, 4)}
 
 
-def test_a_plan_is_futile_only_when_the_scene_after_it_is_the_same():
-    plans = FutilePlans()
-    before = frozenset({(0, 0), (3, 5)})
-    plans.observed(before)
-    plans.made(before, 0, 0)
-    assert not plans.observed(frozenset({(0, 0), (1, 5), (3, 5)}))  # it changed the world
-    assert not plans.is_futile(before, 0, 0)
-    plans.restart()  # an experiment on an unknown pair: a new chain
-    plans.observed(before)
-    plans.made(before, 0, 0)
-    assert plans.observed(before)
-    assert plans.is_futile(before, 0, 0)
-    assert not plans.is_futile(before, 3, 5)  # another pair in the same scene
-    assert not plans.is_futile(frozenset({(0, 0)}), 0, 0)  # the same pair in another scene
+NONE_UNKNOWN = np.zeros((4, 6), dtype=bool)
 
 
-def test_a_plan_that_closes_a_cycle_of_known_plans_is_futile():
-    """Build a two-stack the arm cannot use (scene b), take it down again (back to a)."""
-    plans = FutilePlans()
-    a, b = frozenset({(0, 0), (1, 3)}), frozenset({(0, 0)})
-    plans.observed(a)
-    plans.made(a, 1, 3)
-    assert not plans.observed(b)
-    plans.made(b, 0, 0)
-    assert plans.observed(a), "back in a scene of the chain"
-    assert plans.is_futile(b, 0, 0) and not plans.is_futile(a, 1, 3)
+def unknown_at(*pairs):
+    mask = NONE_UNKNOWN.copy()
+    for h, a in pairs:
+        mask[h, a] = True
+    return mask
 
 
-def test_the_plan_into_a_dead_end_is_futile():
-    plans = FutilePlans()
-    a, b = frozenset({(0, 0), (1, 3)}), frozenset({(0, 0)})
-    plans.observed(a)
-    plans.made(a, 1, 3)
-    plans.observed(b)
-    plans.dead_end()  # in b the loop had to change the setting
-    assert plans.is_futile(a, 1, 3)
-    plans.dead_end()  # said once: nothing else led here
-    assert plans.futile == {(a, 1, 3)}
+def walk(plans, *steps, known=True):
+    """Scenes (name, offer) and the placements between them: (scene, (h, a), scene, ...)."""
+    for i in range(0, len(steps) - 1, 2):
+        (name, offer), (h, a) = steps[i], steps[i + 1]
+        plans.observed(name, offer)
+        plans.made(name, h, a, known)
+    last = steps[-1]
+    return plans.observed(*last)
 
 
-def test_what_is_futile_is_forgotten_when_the_learner_learns():
-    plans = FutilePlans()
-    scene = frozenset({(0, 0)})
-    plans.observed(scene)
-    plans.made(scene, 0, 0)
-    assert plans.observed(scene)
-    plans.restart()  # a reset: still futile
-    assert plans.is_futile(scene, 0, 0)
-    plans.learned()  # an experiment on an unknown pair
-    assert not plans.is_futile(scene, 0, 0)
-
-
-def test_a_reset_between_plan_and_observation_proves_nothing():
-    plans = FutilePlans()
-    scene = frozenset({(0, 0)})
-    plans.observed(scene)
-    plans.made(scene, 0, 0)
+def at(plans, scene):
+    """After a reset, in `scene`: the chain is that scene alone."""
     plans.restart()
-    assert not plans.observed(scene)
-    plans.dead_end()
-    assert not plans.futile
+    plans.observed(*scene)
+
+
+A = ("a", frozenset({(0, 0), (3, 5)}))
+B = ("b", frozenset({(0, 0), (1, 3)}))
+C = ("c", frozenset({(0, 0), (2, 4)}))
+D = ("d", frozenset({(0, 0), (3, 1)}))
+
+
+def test_a_plan_that_left_the_scene_as_it_was_leads_nowhere():
+    plans = PlanOutcomes()
+    assert walk(plans, A, (0, 0), A), "the placement changed nothing"
+    assert plans.leads_nowhere("a", 0, 0, unknown_at((3, 5)))  # even though a offers unknown
+    assert not plans.leads_nowhere("a", 3, 5, NONE_UNKNOWN), "never tried there: one try"
+    assert not plans.leads_nowhere("b", 0, 0, NONE_UNKNOWN), "the same pair in another scene"
+
+
+def test_a_plan_leads_somewhere_while_what_it_led_to_offers_an_unknown_pair():
+    plans = PlanOutcomes()
+    assert not walk(plans, A, (0, 0), B)
+    at(plans, A)
+    assert not plans.leads_nowhere("a", 0, 0, unknown_at((1, 3)))
+    assert plans.leads_nowhere("a", 0, 0, unknown_at((2, 4))), "b offers only known pairs"
+    # b -> c was made once: c's unknown pair is reachable from a through b
+    walk(plans, B, (1, 3), C)
+    at(plans, A)
+    assert not plans.leads_nowhere("a", 0, 0, unknown_at((2, 4)))
+    assert plans.leads_nowhere("a", 0, 0, NONE_UNKNOWN)
+
+
+def test_a_cycle_back_into_the_chain_is_no_way_forward():
+    """Build a two-stack the arm cannot use (b), take it down again (back to a): in a, the
+    plan into b is refused, since from b the only way on leads back into the chain."""
+    plans = PlanOutcomes()
+    walk(plans, A, (0, 0), B, (0, 0), A)
+    assert plans.chain == ("a", "b", "a")
+    assert plans.leads_nowhere("a", 0, 0, unknown_at((3, 5))), "a's own offer is no progress"
+    at(plans, B)  # after a reset, in b: a is progress
+    assert not plans.leads_nowhere("b", 0, 0, unknown_at((3, 5)))
+
+
+def test_the_chain_ends_with_an_experiment_on_an_unknown_pair():
+    plans = PlanOutcomes()
+    walk(plans, A, (0, 0), B)
+    plans.made("b", 1, 3, known=False)
+    plans.observed(*C)
+    assert plans.chain == ("c",)
+
+
+def test_a_way_longer_than_the_deepest_plan_is_not_taken():
+    plans = PlanOutcomes(depth=2)
+    walk(plans, A, (0, 0), B, (1, 3), C, (2, 4), D)
+    at(plans, A)
+    assert not plans.leads_nowhere("a", 0, 0, unknown_at((2, 4))), "c: two placements on"
+    assert plans.leads_nowhere("a", 0, 0, unknown_at((3, 1))), "d: three placements on"
+    assert not PlanOutcomes(depth=3, _offers=plans._offers, _led_to=plans._led_to,
+                            _tried=plans._tried).leads_nowhere("a", 0, 0, unknown_at((3, 1)))
+
+
+def test_a_chain_of_as_many_known_placements_as_the_deepest_plan_goes_no_further():
+    """Scenes a perceived detail tells apart (x1, x2, ...) hide a cycle from the graph; the
+    count of known placements in the chain does not depend on how scenes are told apart."""
+    plans = PlanOutcomes(depth=3)
+    scenes = [(f"x{i}", frozenset({(0, 0)})) for i in range(4)]
+    plans.observed(*scenes[0])
+    for i in range(3):
+        assert not plans.detour_too_long
+        plans.made(scenes[i][0], 0, 0)
+        plans.observed(*scenes[i + 1])
+    assert plans.detour_too_long
+    plans.made("x3", 1, 2, known=False)  # an experiment on an unknown pair ends the chain
+    plans.observed(*scenes[0])
+    assert not plans.detour_too_long and plans.chain == ("x0",)
+    for _ in range(3):
+        plans.made("x0", 0, 0)
+        plans.observed(*scenes[0])
+    assert plans.detour_too_long
+    plans.restart()  # so does a reset
+    assert not plans.detour_too_long
+
+
+def test_a_reset_between_a_placement_and_the_next_scene_proves_nothing():
+    plans = PlanOutcomes()
+    plans.observed(*A)
+    plans.made("a", 0, 0)
+    plans.restart()
+    assert not plans.observed(*A)
+    assert not plans.tried("a", 0, 0) and not plans.leads_nowhere("a", 0, 0, NONE_UNKNOWN)
+
+
+@given(st.lists(st.tuples(st.integers(0, 5), st.integers(0, 2), st.integers(0, 5)),
+                min_size=1, max_size=30),
+       st.lists(st.frozensets(st.tuples(st.integers(0, 3), st.integers(0, 5)), max_size=4),
+                min_size=6, max_size=6),
+       st.frozensets(st.tuples(st.integers(0, 3), st.integers(0, 5)), max_size=8),
+       st.integers(0, 5), st.integers(0, 2), st.integers(1, 6))
+def test_leads_nowhere_is_bounded_reachability_to_an_unknown_offer(edges, offers, unknown_pairs,
+                                                                     start, action, depth):
+    """Against an independent computation: layers of boolean matrix products over the scene
+    graph, never into the starting scene."""
+    plans = PlanOutcomes(depth=depth)
+    for source, a, target in edges:
+        plans.restart()
+        plans.observed(source, offers[source])
+        plans.made(source, 0, a)
+        plans.observed(target, offers[target])
+    at(plans, (start, offers[start]))
+    unknown = unknown_at(*unknown_pairs)
+    adjacency = np.zeros((6, 6), dtype=int)
+    for source, _, target in edges:
+        adjacency[source, target] = 1
+    adjacency[:, start] = 0  # never into the starting scene
+    layer = np.zeros(6, dtype=int)
+    for s, a, t in edges:
+        if s == start and a == action and t != start:
+            layer[t] = 1
+    reachable = layer.copy()
+    for _ in range(depth - 1):
+        layer = ((layer @ adjacency > 0) & (reachable == 0)).astype(int)
+        reachable |= layer
+    promising = any(unknown[h, a] for scene in np.flatnonzero(reachable)
+                    for h, a in offers[scene])
+    tried = any(s == start and a == action for s, a, _ in edges)
+    assert plans.tried(start, 0, action) == tried
+    assert plans.leads_nowhere(start, 0, action, unknown) == (tried and not promising)
 
 
 def test_unknown_pairs_follow_the_query_condition():

@@ -4,6 +4,7 @@ import random
 import threading
 
 import numpy as np
+import pytest
 from katana_curiosity.core.environment import Outcome, Setting
 from katana_curiosity.core.explorer import PLAN, Choice, Explorer
 from katana_curiosity.core.predictors import GAMMA
@@ -26,7 +27,7 @@ from katana_curiosity.core.robot_loop import (
     set_query_rule,
 )
 from katana_curiosity.core.run_record import ExperienceLog, InstanceRecord, replay
-from katana_curiosity.core.strategies import make_strategy
+from katana_curiosity.core.strategies import STRATEGIES, make_strategy
 
 
 class Logger:
@@ -89,9 +90,9 @@ class ScriptedArm:
 
 
 def make_loop(tmp_path, arm, max_experiments=10, seed=0, clock=None, stuck_reset=3,
-              setting_changes=3):
+              setting_changes=3, strategy="q1"):
     bank = robot_bank(3, 6, 1.0, 0.1)
-    strategy = make_strategy("q1", bank, 4, GAMMA, seed=seed,
+    strategy = make_strategy(strategy, bank, 4, GAMMA, seed=seed,
                              feasible=feasible_actions(3, 6, 1))
     explorer = Explorer(arm, bank, strategy, record_weights=True)
     published = []
@@ -101,6 +102,19 @@ def make_loop(tmp_path, arm, max_experiments=10, seed=0, clock=None, stuck_reset
                      lambda record, step: published.append(record), Logger(),
                      wall_clock=clock or (lambda: 5.0))
     return loop, published
+
+
+@pytest.mark.parametrize("name", sorted(STRATEGIES))
+def test_every_strategy_runs_on_the_robot_loop(tmp_path, name) -> None:
+    """Each strategy of the registry (the paper's and the baselines) drives the robot loop:
+    its choices are pairs the setting offered, and each is logged under its mode."""
+    arm = ScriptedArm(3)
+    loop, published = make_loop(tmp_path, arm, max_experiments=12, strategy=name)
+    assert loop.run() == "done: 12 experiments"
+    offered = {(0, 1), (0, 2), (1, 3), (1, 4), (2, 5)}  # ScriptedArm's setting, 1-based actions
+    assert {(r.state, r.action) for r in loop.log.records} <= offered
+    assert published == loop.log.records
+    assert {r.mode for r in loop.log.records} <= {"query", "plan", "random"}
 
 
 def test_drops_are_counted_by_reason_in_the_next_record(tmp_path) -> None:
@@ -344,9 +358,9 @@ def test_a_known_plan_that_left_the_offer_unchanged_is_not_made_again(tmp_path) 
     assert (first.mode, first.state, first.action) == ("plan", 0, 1)
     assert first.unknown_offered == 0 and first.resets_before == 0
     assert arm.resets == 1, "the same plan in the same offer was refused once"
-    assert second.dropped_before == {"plan_changed_nothing": 1} and second.resets_before == 1
+    assert second.dropped_before == {"plan_leads_nowhere": 1} and second.resets_before == 1
     assert (second.mode, second.state) == ("query", 1) and second.unknown_offered == 2
-    assert not loop.futile.futile, "forgotten once the query taught the learner something"
+    assert loop.outcomes.tried((frozenset({0, 3}), ()), 0, 0)  # heights offered, stacks
 
 
 class CountingPlacements(SettingUntilReset):
@@ -361,20 +375,25 @@ class CountingPlacements(SettingUntilReset):
         return super().execute(state, action, index)
 
 
-def test_a_plan_that_changed_the_offer_is_made_again(tmp_path) -> None:
-    """The same plan is fine when its placement led to an offer not seen in this chain."""
+def test_a_plan_that_changed_only_the_actions_offered_left_the_scene_as_it_was(tmp_path) -> None:
+    """Scenes are told apart by the heights offered and the stacks: the actions offered on a
+    stack vary with where its top came to rest, and a cycle through such variants went on for
+    25 experiments on the sim. A placement that only changed them changed nothing."""
 
-    class Alternating(CountingPlacements):
+    class MoreActions(CountingPlacements):
         def observe(self) -> Setting:
-            offer = [(0, 0), (3, 0), (3, 5)][: 1 + self.made]  # a new offer every time
+            if self.resets:
+                offer = [(0, 0), (1, 0), (1, 5)]
+            else:
+                offer = [(0, 0), (3, 0), (3, 5), (3, 2)][: 2 + self.made]
             states, actions = zip(*offer, strict=True)
             return Setting.from_pairs(np.array(states), np.array(actions))
 
-    arm = Alternating()
-    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=3)
+    arm = MoreActions()
+    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=2)
     assert loop.run().startswith("done")
-    assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0)] * 3
-    assert arm.resets == 0 and not loop.futile.futile
+    assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0), ("query", 1)]
+    assert loop.log.records[1].dropped_before == {"plan_leads_nowhere": 1}
 
 
 def test_when_everything_that_can_occur_is_known_the_loop_says_so_and_ends(tmp_path) -> None:
@@ -407,7 +426,7 @@ def test_the_same_offer_over_other_stacks_is_another_setting(tmp_path) -> None:
     loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=3)
     assert loop.run().startswith("done")
     assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0)] * 3
-    assert arm.resets == 0 and not loop.futile.futile
+    assert arm.resets == 0
 
 
 def test_a_table_placement_that_would_move_a_loose_block_changes_the_setting(tmp_path) -> None:
@@ -434,21 +453,41 @@ def test_known_plans_that_go_round_in_a_cycle_are_stopped(tmp_path) -> None:
 
     class Cycle(CountingPlacements):
         def observe(self) -> Setting:
-            if self.resets:
-                offer = [(0, 0), (1, 0), (1, 5)]
-            else:
-                offer = [(0, 0), (3, 0)] if self.made % 2 == 0 else [(0, 0), (3, 5)]
+            offer = [(0, 0), (1, 0), (1, 5)] if self.resets else [(0, 0), (3, 0)]
             states, actions = zip(*offer, strict=True)
             return Setting.from_pairs(np.array(states), np.array(actions))
 
+        def stack_heights(self) -> tuple[int, ...]:
+            return (1, 3) if self.made % 2 == 0 else (2, 2)  # a, b, a, ...
+
     arm = Cycle()
-    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=4)
+    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=3)
     assert loop.run().startswith("done")
-    # a -> b, b -> a closes the cycle (futile in b); a -> b once more, then b refuses and the
-    # plan into that dead end is futile in a too
-    assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0)] * 3 + [("query", 1)]
-    assert arm.resets == 1 and loop.log.records[3].dropped_before == {"plan_changed_nothing": 1}
-    assert not loop.futile.futile, "forgotten once the query taught the learner something"
+    # a -> b, b -> a closes the cycle: back in a, the plan into b leads only back to a
+    assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0)] * 2 + [("query", 1)]
+    assert arm.resets == 1 and loop.log.records[2].dropped_before == {"plan_leads_nowhere": 1}
+
+
+def test_known_plans_in_scenes_that_never_repeat_end_at_the_depth_of_the_deepest_plan(
+        tmp_path) -> None:
+    """Scenes told apart by a detail (here other stacks after every placement) hide any cycle
+    from the graph of outcomes; after as many known plans as the deepest plan (4 for heights
+    0-3) the setting changes all the same."""
+
+    class NeverTheSame(CountingPlacements):
+        def observe(self) -> Setting:
+            offer = [(0, 0), (1, 0), (1, 5)] if self.resets else [(0, 0), (3, 0)]
+            states, actions = zip(*offer, strict=True)
+            return Setting.from_pairs(np.array(states), np.array(actions))
+
+        def stack_heights(self) -> tuple[int, ...]:
+            return (1,) * self.made + (3,)  # other stacks after every placement
+
+    arm = NeverTheSame()
+    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=5)
+    assert loop.run().startswith("done")
+    assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0)] * 4 + [("query", 1)]
+    assert arm.resets == 1 and loop.log.records[4].dropped_before == {"detour_too_long": 1}
 
 
 def test_a_refused_plan_gives_way_to_the_best_plan_worth_making(tmp_path) -> None:
@@ -459,8 +498,10 @@ def test_a_refused_plan_gives_way_to_the_best_plan_worth_making(tmp_path) -> Non
     strategy = loop.explorer.strategy
     strategy.planner.solve()
     first = strategy.planned(arm.observe())
-    offer = frozenset({(0, 0), (1, 0), (1, 5)})
-    loop.futile.futile.add(((offer, ()), first.state, first.action))
+    scene, offer = (frozenset({0, 1}), ()), frozenset({(0, 0), (1, 0), (1, 5)})
+    loop.outcomes.observed(scene, offer)
+    loop.outcomes.made(scene, first.state, first.action)
+    loop.outcomes.observed(scene, offer)  # it changed nothing
     assert loop.run().startswith("done")
     [record] = loop.log.records
     assert arm.resets == 0 and record.mode == "plan" and record.dropped_before == {}

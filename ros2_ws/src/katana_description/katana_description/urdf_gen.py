@@ -11,6 +11,7 @@ whose tips carry flat, high-friction pads, so the gripper holds a block by conta
 
 from __future__ import annotations
 
+import argparse
 import math
 import sys
 from pathlib import Path
@@ -209,9 +210,17 @@ def write_all(out_dir: Path) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = sys.argv[1:] if argv is None else argv
-    out = Path(args[0]) if args else Path(__file__).resolve().parent.parent / "urdf"
-    for path in write_all(out):
+    # plain argparse: katana_common (the shared cli_args) depends on this package, not back
+    parser = argparse.ArgumentParser(prog="katana-urdf-gen", description=__doc__.split("\n\n")[0])
+    parser.add_argument("out_dir", nargs="?", type=Path, metavar="OUT_DIR",
+                        default=Path(__file__).resolve().parent.parent / "urdf",
+                        help="where the files go (default: the package's urdf/ folder)")
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        written = write_all(args.out_dir)
+    except OSError as err:
+        parser.error(f"argument OUT_DIR: cannot write in {args.out_dir}: {err.strerror or err}")
+    for path in written:
         print(path)
     return 0
 

@@ -23,6 +23,14 @@ import tty
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from katana_common.cli_args import (
+    float_in,
+    fraction,
+    listen_host,
+    parse_command_line,
+    tcp_port,
+)
+
 from katana_driver.core import protocol as p
 from katana_driver.emulator_model import BANNER, KatanaModel
 
@@ -258,27 +266,45 @@ class KatanaEmulator:
         self.stop()
 
 
-def main(argv: list[str] | None = None) -> int:
+#: the model's pace: model seconds per wall second (tests run it faster than real time)
+_time_scale = float_in(0.0, 1000.0, low_open=True, what="a pace")
+_model_seconds = float_in(0.0, 3600.0, what="a number of model seconds")
+_reply_delay = float_in(0.0, 60.0, what="a number of seconds")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The options, each checked while parsing (katana_common.cli_args)."""
     parser = argparse.ArgumentParser(
         prog="katana-emulator",
         description=f"{BANNER}. Speaks the Katana controller protocol for tests and dry runs.",
     )
-    parser.add_argument("--host", default="127.0.0.1", help="address to listen on (loopback)")
-    parser.add_argument("--port", type=int, default=5566, help="TCP port (0: any free port)")
+    parser.add_argument("--host", type=listen_host, default="127.0.0.1",
+                        help="address to listen on (loopback)")
+    parser.add_argument("--port", type=tcp_port, default=5566,
+                        help="TCP port, 0..65535 (0: any free port)")
     parser.add_argument("--serial", action="store_true", help="also open a pseudo-terminal")
     parser.add_argument("--type", type=int, default=450, choices=(300, 400, 450))
     parser.add_argument("--variant", default="6M180", choices=("6M180", "6M90A", "6M90B"))
-    parser.add_argument("--time-scale", type=float, default=1.0, help="model s per wall s")
-    parser.add_argument("--calibration-time", type=float, default=4.0, help="model seconds")
+    parser.add_argument("--time-scale", type=_time_scale, default=1.0,
+                        help="model s per wall s, (0, 1000]")
+    parser.add_argument("--calibration-time", type=_model_seconds, default=4.0,
+                        help="model seconds, [0, 3600]")
     parser.add_argument("--calibrated", action="store_true", help="start calibrated")
-    parser.add_argument("--latency", type=float, default=0.0, help="seconds before each reply")
+    parser.add_argument("--latency", type=_reply_delay, default=0.0,
+                        help="seconds before each reply, [0, 60]")
     parser.add_argument("--split", action="store_true", help="send replies in two parts")
-    parser.add_argument("--silent-rate", type=float, default=0.0, help="fraction of lost replies")
-    parser.add_argument("--corrupt-rate", type=float, default=0.0, help="fraction of bad CRCs")
-    parser.add_argument("--spline-latency", type=float, default=0.0,
-                        help="extra seconds before replies to spline commands (G, H)")
+    parser.add_argument("--silent-rate", type=fraction, default=0.0,
+                        help="fraction of lost replies, [0, 1]")
+    parser.add_argument("--corrupt-rate", type=fraction, default=0.0,
+                        help="fraction of bad CRCs, [0, 1]")
+    parser.add_argument("--spline-latency", type=_reply_delay, default=0.0,
+                        help="extra seconds before replies to spline commands (G, H), [0, 60]")
     parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_command_line(build_parser(), argv)
 
     model = KatanaModel(katana_type=args.type, variant=args.variant, time_scale=args.time_scale,
                         calibration_s=args.calibration_time, calibrated=args.calibrated)

@@ -67,6 +67,12 @@ PARAMS = (
 )
 
 
+def cross_check(values) -> str | None:
+    """The park pose is within the joint limits of the model (start-up and live changes)."""
+    why = KatanaKinematics(values["model"]).limit_violation(values["park_pose"])
+    return f"parameter 'park_pose' is outside the joint limits: {why}" if why else None
+
+
 def yaw_of(q) -> float:
     """Yaw about +z of a geometry_msgs Quaternion."""
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
@@ -75,7 +81,7 @@ def yaw_of(q) -> float:
 class PickPlaceExecutor(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("pick_place_executor", **kwargs)
-        self.params = declare_parameters(self, PARAMS, cross_check=self._check_park)
+        self.params = declare_parameters(self, PARAMS, cross_check=cross_check)
         self.kin = KatanaKinematics(self.params["model"])
         self.planner = pp.PickPlacePlanner(self.kin, self._planner_params())
         self.params.on_change(self._on_params)
@@ -96,11 +102,6 @@ class PickPlaceExecutor(Node):
             cancel_callback=lambda _g: CancelResponse.ACCEPT,
             callback_group=ReentrantCallbackGroup())
         self.port = RosArmPort(self)
-
-    @staticmethod
-    def _check_park(values) -> str | None:
-        why = KatanaKinematics(values["model"]).limit_violation(values["park_pose"])
-        return f"parameter 'park_pose' is outside the joint limits: {why}" if why else None
 
     def _planner_params(self) -> pp.PickPlaceParams:
         return pp.PickPlaceParams(park_pose=list(self.params["park_pose"]),

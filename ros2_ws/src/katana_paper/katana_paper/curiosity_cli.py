@@ -6,7 +6,18 @@ import argparse
 import sys
 import time
 
-from katana_common.cli_args import non_negative_int, positive_int, writable_folder
+from katana_common.cli_args import (
+    CommandLineError,
+    comma_list,
+    float_in,
+    fraction,
+    non_negative_int,
+    parse_command_line,
+    positive_int,
+    positive_number,
+    writable_folder,
+)
+from katana_curiosity.core.abstract_world import AbstractBlocksWorld
 from katana_curiosity.core.predictors import ALPHA, GAMMA, THETA_ABSTRACT
 from katana_curiosity.core.strategies import STRATEGIES
 from tqdm import tqdm
@@ -19,36 +30,14 @@ from .sweep import DEFAULT_GRID, DEFAULT_SWEEP_STRATEGIES, SweepSpec, parse_grid
 EXPERIMENTS = 10_000
 
 
-def _discount(text: str) -> float:
-    value = float(text)
-    if not 0.0 <= value < 1.0:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1), got {value}")
-    return value
+_discount = float_in(0.0, 1.0, high_open=True, what="a discount factor")
+_strategy_names = comma_list(STRATEGIES, "strategy")
 
 
 def _strategies(text: str) -> list[str]:
-    names = [m.strip().lower() for m in text.split(",") if m.strip()]
-    unknown = [m for m in names if m not in STRATEGIES]
-    if not names or unknown:
-        raise argparse.ArgumentTypeError(
-            f"unknown strategy(s) {', '.join(unknown) or '(none given)'}: "
-            f"choose from {', '.join(sorted(STRATEGIES))}"
-        )
-    return list(dict.fromkeys(names))
-
-
-def _unit_interval(text: str) -> float:
-    value = float(text)
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {value}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    value = float(text)
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {value}")
-    return value
+    """Comma-separated strategy names (any case), each once, in the order given."""
+    names = _strategy_names(text.lower())
+    return list(dict.fromkeys(m.strip() for m in names.split(",") if m.strip()))
 
 
 def _grid_axis(text: str) -> tuple[str, tuple]:
@@ -69,9 +58,9 @@ def _add_runs(p: argparse.ArgumentParser, seeds: int, strategies: str, per: str,
     p.add_argument("--strategies", "--methods", dest="strategies", type=_strategies,
                    default=_strategies(strategies),
                    help=f"comma-separated, from {','.join(STRATEGIES)}")
-    p.add_argument("--alpha", type=_positive_float, default=ALPHA,
+    p.add_argument("--alpha", type=positive_number, default=ALPHA,
                    help=f"query condition scale{where}")
-    p.add_argument("--theta", type=_unit_interval, default=THETA_ABSTRACT,
+    p.add_argument("--theta", type=fraction, default=THETA_ABSTRACT,
                    help=f"query threshold{where}, [0, 1]")
     p.add_argument("--gamma", type=_discount, default=GAMMA,
                    help=f"discount factor{where}, [0, 1)")
@@ -128,13 +117,17 @@ def _add_sweep(sub) -> None:
     p.add_argument("--no-figures", action="store_true", help="write sweep.csv and summary only")
 
 
-def _sweep(args, parser: argparse.ArgumentParser) -> int:
+def _check_sweep(args) -> None:
+    """The sweep's grid with the other options (cli_args.parse_command_line, before any
+    work): it leaves the SweepSpec in `args.spec`."""
+    if args.command != "sweep":
+        return
     grid = dict(args.grid) if args.grid else dict(DEFAULT_GRID)
     if args.grid and len(grid) != len(args.grid):
-        parser.error("argument --grid: each parameter may be given once")
+        raise CommandLineError("--grid", "each parameter may be given once")
     base = {k: getattr(args, k) for k in ("alpha", "theta", "gamma") if k not in grid}
     try:
-        spec = SweepSpec(
+        args.spec = SweepSpec(
             grid=grid,
             strategies=tuple(args.strategies),
             seeds=args.seeds,
@@ -142,11 +135,17 @@ def _sweep(args, parser: argparse.ArgumentParser) -> int:
             experiments=args.experiments,
             base=base,
         )
+        for n_blocks, n_features in {(c.n_blocks, c.n_features) for c in args.spec.configs()}:
+            AbstractBlocksWorld(n_blocks, n_features)  # the world's own bounds, checked now
     except ValueError as exc:
-        parser.error(f"argument --grid: {exc}")
+        raise CommandLineError("--grid", str(exc)) from None
+
+
+def _sweep(args) -> int:
     start = time.perf_counter()
     summary = run_sweep(
-        spec, args.out, address=args.address, num_cpus=args.num_cpus, figures=not args.no_figures
+        args.spec, args.out, address=args.address, num_cpus=args.num_cpus,
+        figures=not args.no_figures
     )
     wall = time.perf_counter() - start
     for name, per_strategy in summary["by_parameter"].items():
@@ -161,10 +160,9 @@ def _sweep(args, parser: argparse.ArgumentParser) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parse_command_line(build_parser(), argv, [_check_sweep])
     if args.command == "sweep":
-        return _sweep(args, parser)
+        return _sweep(args)
     if args.command == "claims":
         return cmd_curiosity_claims(args)
     configs = [

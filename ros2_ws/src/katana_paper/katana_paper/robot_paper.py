@@ -32,6 +32,7 @@ from katana_curiosity.core.predictors import (  # noqa: E402
     one_hot_with_bias,
 )
 
+from .claims.stats import MIN_SEEDS, mean_band  # noqa: E402
 from .robot_truth import TruthTable, kl_to_truth, wilson_interval  # noqa: E402
 
 #: the paper's claim of a usable model "within about 30 interactions" (section 3.3)
@@ -188,32 +189,38 @@ def summarise(
 # -- figures -------------------------------------------------------------------------------
 
 
-def _mean_curve(runs: Sequence[RunAnalysis], h: int) -> tuple[np.ndarray, np.ndarray]:
+def _curves(runs: Sequence[RunAnalysis], h: int | None) -> np.ndarray:
+    """(seeds, experiments) KL at height `h`, or overall (the mean over the measured heights)
+    with h None; cut to the shortest run."""
     n = min(len(r.kl) for r in runs)
-    stack = np.array([r.kl[:n, h] for r in runs])
-    with warnings.catch_warnings():  # heights never measured are all-NaN columns
+    if h is not None:
+        return np.array([r.kl[:n, h] for r in runs])
+    with warnings.catch_warnings():  # experiments before any height was measured
         warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanmean(stack, axis=0), np.nanstd(stack, axis=0)
+        return np.array([np.nanmean(r.kl[:n], axis=1) for r in runs])
 
 
 def kl_figure(analyses: Sequence[RunAnalysis], path: Path) -> None:
-    """KL(measured truth || learned) per height over experiments, mean +- sd over seeds, one
-    line per strategy (cf. Figures 5 and 9)."""
+    """Learning curves: KL(measured truth || learned) per height and overall over experiments,
+    one line per strategy, the mean over seeds with its 95 % bootstrap band (the range of the
+    seeds with fewer than three) (cf. Figures 5 and 9)."""
     strategies = list(dict.fromkeys(a.strategy for a in analyses))
     heights = analyses[0].kl.shape[1]
-    fig, axes = plt.subplots(1, heights, figsize=(3.3 * heights, 3.2), squeeze=False,
+    panels = [*range(heights), None]
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.3 * len(panels), 3.2), squeeze=False,
                              sharey=True)
-    for h, ax in enumerate(axes[0]):
+    for h, ax in zip(panels, axes[0], strict=True):
         for k, strategy in enumerate(strategies):
             runs = [a for a in analyses if a.strategy == strategy and len(a.kl)]
             if not runs:
                 continue
-            mean, sd = _mean_curve(runs, h)
+            mean, low, high = mean_band(_curves(runs, h))
             x = np.arange(1, len(mean) + 1)
-            ax.plot(x, mean, color=f"C{k}", label=f"{strategy} ({len(runs)} seeds)")
-            ax.fill_between(x, mean - sd, mean + sd, color=f"C{k}", alpha=0.15)
+            band = "95 % CI" if len(runs) >= MIN_SEEDS else "range"
+            ax.plot(x, mean, color=f"C{k}", label=f"{strategy} ({len(runs)} seeds, {band})")
+            ax.fill_between(x, low, high, color=f"C{k}", alpha=0.18, lw=0)
         ax.axvline(USABLE_AFTER, color="grey", lw=0.6, ls=":")
-        ax.set_title(f"height {h}", fontsize=9)
+        ax.set_title("overall" if h is None else f"height {h}", fontsize=9)
         ax.set_xlabel("experiment")
         ax.grid(alpha=0.3)
     axes[0, 0].set_ylabel("KL(measured truth || learned)")

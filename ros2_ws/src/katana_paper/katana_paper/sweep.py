@@ -14,7 +14,6 @@ import csv
 import itertools
 import json
 import math
-import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -26,6 +25,7 @@ from katana_curiosity.core.strategies import STRATEGIES
 from tqdm import tqdm
 
 from .experiments import FAST_STRATEGY_NAMES, RunConfig, run
+from .ray_session import ray_session
 
 # What a grid may sweep, with its type; every other RunConfig field is fixed for the sweep.
 SWEEPABLE: dict[str, type] = {
@@ -170,14 +170,6 @@ def _drop_cut_line(path: Path) -> None:
             f.truncate(data.rfind(b"\n") + 1)
 
 
-def _ray():
-    # No network at run time: Ray's usage statistics stay off (set before ray is imported).
-    os.environ["RAY_USAGE_STATS_ENABLED"] = "0"
-    import ray  # noqa: PLC0415 - heavy, and only after the setting above: ray reads it when imported
-
-    return ray
-
-
 def run_sweep(
     spec: SweepSpec,
     out: Path,
@@ -205,26 +197,9 @@ def run_sweep(
             from katana_curiosity.core.fastpath import warm_up  # noqa: PLC0415 - numba: only for fast runs
 
             warm_up()  # compiles once here rather than in every worker on a fresh checkout
-        ray = _ray()
-        started = not ray.is_initialized()
-        if started:
-            local = {} if address else {"_node_ip_address": "127.0.0.1"}
-            ray.init(
-                address=address or "local",
-                num_cpus=None if address else num_cpus,
-                # a local Ray binds to loopback and never looks up a route to the internet
-                **local,
-                include_dashboard=False,
-                log_to_driver=False,
-                configure_logging=True,
-                logging_level="WARNING",
-            )
-        try:
+        with ray_session(address, num_cpus) as ray:
             header = list(existing[0]) if existing else csv_header(spec)
             ran = _submit(ray, todo, csv_path, header, progress, on_row)
-        finally:
-            if started:
-                ray.shutdown()
     wanted = {run_key(config_row(c)) for c in configs}
     rows = [r for r in read_rows(csv_path) if run_key(r) in wanted]
     summary = summarise_sweep(spec, rows)

@@ -86,6 +86,32 @@ def test_the_interval_agrees_with_an_independent_numpy_bootstrap() -> None:
     assert est.se == pytest.approx(np.std(bx - by, ddof=1), rel=0.03)
 
 
+def test_a_learning_curve_band_is_a_numpy_bootstrap_of_the_mean_at_every_point() -> None:
+    rng = np.random.default_rng(5)
+    curves = rng.gamma(2.0, 0.2, (12, 4)) + np.linspace(1.0, 0.1, 4)  # 12 seeds, 4 points
+    mean, low, high = stats.mean_band(curves, resamples=20_000)
+    assert mean == pytest.approx(curves.mean(axis=0))
+    own = np.random.default_rng(99)
+    for point in range(4):
+        column = curves[:, point]
+        boot = column[own.integers(0, 12, (20_000, 12))].mean(axis=1)
+        lo, hi = np.percentile(boot, [2.5, 97.5])
+        assert low[point] == pytest.approx(lo, abs=0.03 * (hi - lo))
+        assert high[point] == pytest.approx(hi, abs=0.03 * (hi - lo))
+
+
+def test_a_band_over_few_seeds_is_their_range_and_missing_values_are_left_out() -> None:
+    curves = np.array([[1.0, 2.0, np.nan], [3.0, 0.0, 5.0]])
+    mean, low, high = stats.mean_band(curves)
+    assert mean.tolist() == [2.0, 1.0, 5.0]
+    assert low.tolist() == [1.0, 0.0, 5.0] and high.tolist() == [3.0, 2.0, 5.0]
+    five = np.vstack([curves, [[2.0, 1.0, 4.0]] * 3])
+    mean, low, high = stats.mean_band(five)
+    assert mean[2] == pytest.approx((5.0 + 3 * 4.0) / 4)  # the seed without a value left out
+    assert (low <= mean).all() and (mean <= high).all()
+    assert np.isnan(stats.mean_band(np.full((3, 2), np.nan))[0]).all()
+
+
 @pytest.mark.parametrize(("ci", "claimed", "expected"), [
     ((0.1, 0.2), GREATER, "PASS"), ((-0.2, -0.1), GREATER, "FAIL"),
     ((-0.1, 0.1), GREATER, "INCONCLUSIVE"), ((0.0, 0.1), GREATER, "INCONCLUSIVE"),

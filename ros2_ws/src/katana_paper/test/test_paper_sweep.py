@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from katana_paper.curiosity_cli import main
 from katana_paper.experiments import RunConfig, run
+from katana_paper.ray_session import ray_session as session
 from katana_paper.sweep import (
     SweepSpec,
-    _ray,
     csv_header,
     parse_grid_axis,
     read_rows,
@@ -22,16 +22,9 @@ from katana_paper.sweep import (
 
 @pytest.fixture(scope="module")
 def ray_session():
-    ray = _ray()  # sets RAY_USAGE_STATS_ENABLED=0 before ray is imported
-    ray.init(
-        address="local",
-        num_cpus=2,
-        include_dashboard=False,
-        log_to_driver=False,
-        logging_level="WARNING",
-    )
-    yield ray
-    ray.shutdown()
+    """One local Ray for the module; run_sweep uses it rather than starting its own."""
+    with session(None, num_cpus=2) as ray:
+        yield ray
 
 
 def test_grid_axes_parse_and_bad_ones_are_named() -> None:

@@ -10,14 +10,20 @@ cannot tell a long focal length from a far camera.
 from __future__ import annotations
 
 import argparse
-import math
-import os
 import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import yaml
+from katana_common.cli_args import (
+    CommandLineError,
+    float_in,
+    parse_command_line,
+    positive_number,
+    readable_file,
+    writable_folder,
+)
 from katana_description.models import BLOCK_SIZE
 
 from .core.calibration import Calibration, load_camera_info_yaml, solve_extrinsics
@@ -45,36 +51,7 @@ tilt and shift confused, which costs several mm at other heights.
 """
 
 
-def _readable_file(text: str) -> Path:
-    path = Path(text).expanduser()
-    if not path.is_file() or not os.access(path, os.R_OK):
-        raise argparse.ArgumentTypeError(f"a readable file, got {text!r}")
-    return path
-
-
-def _number(low: float, low_open: bool):
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        ok = math.isfinite(value) and (value > low if low_open else value >= low)
-        if not ok:
-            raise argparse.ArgumentTypeError(
-                f"a finite number {'>' if low_open else '>='} {low:g}, got {text!r}")
-        return value
-    return parse
-
-
-def _writable_dir(text: str) -> Path:
-    """A folder that exists and is writable, or can be made in a writable one."""
-    path = Path(text).expanduser()
-    probe = path
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
-        raise argparse.ArgumentTypeError(f"a writable folder, got {text!r}")
-    return path
+_pixels = float_in(0.0, what="a pixel coordinate")
 
 
 def _color_entry(text: str) -> str:
@@ -97,24 +74,24 @@ def build_parser() -> argparse.ArgumentParser:
         description="Calibrate the overhead camera from >= 4 blocks/markers at known places "
                     "(cv2.solvePnP).",
         epilog=USAGE_EXAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--image", required=True, type=_readable_file, action="append",
+    ap.add_argument("--image", required=True, type=readable_file, action="append",
                     help="overhead image (PNG/JPG) with the arm out of view; repeat with "
                          "--points for more views (more points: a better pose)")
-    ap.add_argument("--points", required=True, type=_readable_file, action="append",
+    ap.add_argument("--points", required=True, type=readable_file, action="append",
                     help="YAML file of the known points of the matching --image")
-    ap.add_argument("--camera-info", type=_readable_file,
+    ap.add_argument("--camera-info", type=readable_file,
                     help="intrinsics: ROS camera_info YAML (camera_calibration output)")
-    ap.add_argument("--fx", type=_number(0.0, True),
+    ap.add_argument("--fx", type=positive_number,
                     help="focal length in px, when no --camera-info")
-    ap.add_argument("--fy", type=_number(0.0, True), help="default: fx")
-    ap.add_argument("--cx", type=_number(0.0, False), help="default: (width - 1) / 2")
-    ap.add_argument("--cy", type=_number(0.0, False), help="default: (height - 1) / 2")
+    ap.add_argument("--fy", type=positive_number, help="default: fx")
+    ap.add_argument("--cx", type=_pixels, help="default: (width - 1) / 2")
+    ap.add_argument("--cy", type=_pixels, help="default: (height - 1) / 2")
     ap.add_argument("--color-table", nargs="+", metavar="NAME:LO-HI", type=_color_entry,
                     help="colour table entries, as perception_node's color_table parameter")
-    ap.add_argument("--out-dir", type=_writable_dir, default=Path("."),
+    ap.add_argument("--out-dir", type=writable_folder, default=Path("."),
                     help="where camera_info.yaml and extrinsics.yaml go (default: .)")
     ap.add_argument("--camera-name", default="overhead_camera", type=_name)
-    ap.add_argument("--max-rms", type=_number(0.0, True), default=2.0,
+    ap.add_argument("--max-rms", type=positive_number, default=2.0,
                     help="fail when the RMS reprojection error exceeds this, px (default 2)")
     return ap
 
@@ -177,14 +154,18 @@ def calibrate(views: list[tuple[np.ndarray, dict, list, list]], K: np.ndarray, D
     return calib, rms, list(zip(names, err.tolist(), strict=True))
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = build_parser()
-    args = ap.parse_args(argv)
+def _check(args) -> None:
+    """Across options (cli_args.parse_command_line, before any work)."""
     if len(args.image) != len(args.points):
-        ap.error(f"--points: {len(args.image)} --image but {len(args.points)} --points; give "
-                 "one points file per image")
+        raise CommandLineError("--points", f"{len(args.image)} --image but {len(args.points)} "
+                               "--points; give one points file per image")
     if args.camera_info is None and args.fx is None:
-        ap.error("--camera-info/--fx: intrinsics needed: --camera-info FILE or --fx PX (> 0)")
+        raise CommandLineError("--camera-info/--fx", "intrinsics needed: --camera-info FILE or "
+                               "--fx PX (> 0)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_command_line(build_parser(), argv, [_check])
     try:
         images = []
         for path in args.image:

@@ -76,7 +76,8 @@ def _fovea_params(p) -> FoveaParams:
         max_height=p["max_height"], table_yaw=p["table_yaw"])
 
 
-def _cross_check(values) -> str | None:
+def cross_check(values) -> str | None:
+    """The shared files and colours, and the fovea settings they give (start-up and live)."""
     problem = check_files_and_colors(values)
     if problem:
         return problem
@@ -90,7 +91,7 @@ def _cross_check(values) -> str | None:
 class FoveaNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("fovea_node", **kwargs)
-        self.params = declare_parameters(self, PARAMS, _cross_check)
+        self.params = declare_parameters(self, PARAMS, cross_check)
         p = self.params
         self.world_frame = p["world_frame"]
         self.block_size = tuple(p["block_size"])

@@ -44,8 +44,9 @@ PARAMS: tuple[Param, ...] = SCENE_PARAMS + (
     Param("camera_frame", "camera_optical_frame", "frame_id of the images.", nonempty=True),
     Param("play_x", [0.14, 0.30], "Scatter area: x min, max, m.", -1.0, 1.0, length=2),
     Param("play_y", [-0.16, 0.16], "Scatter area: y min, max, m.", -1.0, 1.0, length=2),
-    Param("play_radius", [0.14, 0.285], "Scatter area: distance from the pan axis min, max, m "
-          "(a top-down pick reaches 0.285).", 0.0, 1.0, length=2),
+    Param("play_radius", list(SimConfig.play_radius), "Scatter area: distance from the pan "
+          "axis min, max, m (a top-down pick of a table block reaches 0.283).", 0.0, 1.0,
+          length=2),
 )
 
 

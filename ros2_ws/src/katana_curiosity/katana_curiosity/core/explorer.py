@@ -49,9 +49,10 @@ class Step:
 class NoRouteToUnknown(PlacementUnavailable):
     """A planned choice not worth making: its outcome is known and it leads to no unknown pair,
     so the setting should change instead (the robot loop resets it). `reason` says why:
-    no_route_to_unknown (the model sees no unknown pair beyond it), plan_changed_nothing (the
-    same plan in the same scene left the scene as it was) or table_to_table (a placement on the
-    table would move a block that lies on the table)."""
+    no_route_to_unknown (the model sees no unknown pair beyond it), plan_leads_nowhere (made
+    before in the same scene, it led only to scenes offering no pair unknown now),
+    detour_too_long (as many known plans as the deepest plan were made in a row) or
+    table_to_table (a placement on the table would move a block that lies on the table)."""
 
     def __init__(self, message: str, reason: str = "no_route_to_unknown") -> None:
         super().__init__(message)

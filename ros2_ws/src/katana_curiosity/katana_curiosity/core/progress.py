@@ -1,10 +1,9 @@
 """Whether the robot's exploration still makes progress, online and from the log.
 
-Online, for the robot loop: a planned placement whose outcome is known and after which the arm
-is offered exactly the same (height, action) pairs as before changed nothing the learner can
-use (on the sim: a loose block moved from the table to the table, next to a stack too tall to
-place on). `FutilePlans` remembers such plans by the offer they were made in, so that the loop
-changes the setting instead of making them again. `all_known` says when no pair the arm can
+Online, for the robot loop: `PlanOutcomes` remembers where every placement led, scene to scene,
+so that a known plan that cannot lead to an unknown pair any more (it changed nothing, closed a
+cycle, or ends in scenes offering only known pairs) is not made again; the loop changes the
+setting instead. `unknown_realisable` says when no pair the arm can
 ever realise is unknown: the paper's agent "knows when to stop its planning efforts".
 
 From the log, for summary.json: the experiments that were wasted (known before they were made,
@@ -81,58 +80,96 @@ Scene = Hashable
 
 
 @dataclass
-class FutilePlans:
-    """Known planned placements that cannot lead anywhere new, by the scene they were made in.
+class PlanOutcomes:
+    """Where each placement led, scene to scene, so that a known plan is made only while it can
+    still lead to a pair the learner does not know.
 
-    A scene is what the loop can tell settings apart by: the offer and the heights of the
-    stacks (two settings with the same offer but other stacks are different places to be). The
-    scenes since the last experiment on an unknown pair (or the last reset) form a chain. A
-    known plan is futile in its scene when it led back to a scene of the chain (it changed
-    nothing, or closed a cycle: on the sim, building a two-stack the arm could not use and
-    taking it down again), or when it led to a dead end, a scene in which the loop had to change
-    the setting instead of going on.
+    A scene is what the loop tells settings apart by (on the robot: the heights offered and the
+    heights of the stacks), with every pair it was seen to offer. Every placement adds an edge from
+    the scene it was made in to the scene observed after it. The scenes since the last
+    experiment on an unknown pair (or the last reset) form the chain. A plan tried before leads
+    nowhere when no scene reachable over the recorded edges in at most `depth` placements,
+    without entering a scene of the chain, offers a pair that is unknown now: it changed
+    nothing, closed a cycle (on the sim, building a two-stack the arm cannot use and taking it
+    down again), or ends in scenes that offer only known pairs (a two-stack whose top offers
+    nothing new). The depth is that of the deepest plan (one placement per height): a way to an
+    unknown pair longer than that is not one the planner takes. The test is made against the
+    learner's unknown pairs at the time of asking, so a plan comes back as soon as learning
+    makes a pair beyond it unknown again; a plan never tried in a scene gets one try.
 
-    Call `observed(scene)` for every observed scene, `made(scene, height, action)` after a
-    planned placement of a known pair, `restart()` after a reset, `learned()` after an
-    experiment on an unknown pair, and `dead_end()` when the loop changes the setting instead
-    of a plan. What is futile is forgotten when the learner learns something new: one failed
-    attempt in the scene every reset makes (loose blocks) must not bar a plan for good.
+    However the scenes are told apart, a chain of as many known placements as the deepest plan
+    that reached no unknown pair is not extended (`detour_too_long`).
+
+    Call `observed(scene, offer)` for every observed scene, `made(scene, height, action, known)`
+    after every placement and `restart()` after a reset.
     """
 
-    futile: set[tuple[Scene, int, int]] = field(default_factory=set)
-    _pending: tuple[Scene, int, int] | None = None  # the known plan the next scene comes from
-    _led_here: tuple[Scene, int, int] | None = None  # the known plan the current scene came from
+    depth: int = 4
+    _offers: dict[Scene, Offer] = field(default_factory=dict)
+    _led_to: dict[tuple[Scene, int, int], set[Scene]] = field(default_factory=dict)
+    _tried: dict[Scene, set[tuple[int, int]]] = field(default_factory=dict)
+    _pending: tuple[Scene, int, int] | None = None  # the placement the next scene comes from
     _chain: list[Scene] = field(default_factory=list)
+    _chain_ends: bool = False  # the last placement was on an unknown pair
+    _known_made: int = 0  # known placements made in the chain
 
-    def made(self, scene: Scene, height: int, action: int) -> None:
+    def made(self, scene: Scene, height: int, action: int, known: bool = True) -> None:
         self._pending = (scene, int(height), int(action))
+        self._chain_ends = not known
+        self._known_made += bool(known)
 
     def restart(self) -> None:
-        self._pending = self._led_here = None
+        self._pending = None
         self._chain = []
+        self._known_made = 0
 
-    def learned(self) -> None:
-        self.restart()
-        self.futile.clear()
+    @property
+    def detour_too_long(self) -> bool:
+        """Whether the chain holds as many known placements as the deepest plan: a way to an
+        unknown pair is never longer, so the chain is going round (on the sim, scenes told
+        apart by a perceived detail, such as a block on its side seen or not, hide a cycle)."""
+        return self._known_made >= self.depth
 
-    def observed(self, scene: Scene) -> bool:
-        """Note a scene; True when the known plan that led to it led back into the chain."""
+    @property
+    def chain(self) -> tuple[Scene, ...]:
+        return tuple(self._chain)
+
+    def observed(self, scene: Scene, offer: Offer) -> bool:
+        """Note a scene; True when the placement that led to it left the scene as it was."""
+        self._offers[scene] = self._offers.get(scene, frozenset()) | offer
         pending, self._pending = self._pending, None
-        self._led_here = pending
-        back = pending is not None and scene in self._chain
-        if back:
-            self.futile.add(pending)
+        if self._chain_ends:
+            self._chain, self._chain_ends, self._known_made = [], False, 0
         self._chain.append(scene)
-        return back
+        if pending is None:
+            return False
+        self._led_to.setdefault(pending, set()).add(scene)
+        self._tried.setdefault(pending[0], set()).add(pending[1:])
+        return scene == pending[0]
 
-    def dead_end(self) -> None:
-        """The current scene offered nothing worth making: the plan that led here is futile."""
-        if self._led_here is not None:
-            self.futile.add(self._led_here)
-            self._led_here = None
+    def tried(self, scene: Scene, height: int, action: int) -> bool:
+        return (scene, int(height), int(action)) in self._led_to
 
-    def is_futile(self, scene: Scene, height: int, action: int) -> bool:
-        return (scene, int(height), int(action)) in self.futile
+    def leads_nowhere(self, scene: Scene, height: int, action: int,
+                      unknown: np.ndarray) -> bool:
+        """Whether the plan was tried in `scene` and nothing it led to, nor anything reachable
+        from there by placements made before (breadth first, `depth` placements in all, never
+        into the chain or `scene`), offers a pair that is `unknown` (heights x actions) now."""
+        outcomes = self._led_to.get((scene, int(height), int(action)))
+        if not outcomes:
+            return False
+        seen = {scene, *self._chain}
+        layer = {s for s in outcomes if s not in seen}
+        for step in range(self.depth):
+            if any(bool(unknown[h, a]) for here in layer for h, a in self._offers.get(here, ())
+                   if h < unknown.shape[0]):
+                return False
+            seen |= layer
+            if step + 1 == self.depth:
+                break
+            layer = {there for here in layer for h, a in self._tried.get(here, ())
+                     for there in self._led_to[(here, h, a)]} - seen
+        return True
 
 
 # -- from the log ---------------------------------------------------------------------------

@@ -13,9 +13,13 @@ Policy (the paper's robot had a person for this; here it is explicit):
   only if it leads towards an unknown pair (`leads_towards_unknown`); otherwise the setting
   is changed (reset) instead, at most `setting_changes` times in a row before the plan is
   followed anyway (a setting that no reset improves must not stop the run).
-- A known plan that led back to a scene seen since the last experiment on an unknown pair (it
-  changed nothing, or closed a cycle) or into a dead end is not made again in that scene
-  (`progress.FutilePlans`), nor a table placement that could only move a loose block; the
+- A known plan made before in the same scene is made again only while a scene it led to, or
+  one reachable from there by placements made before (as many as the deepest plan, never back
+  into the scenes since the last experiment on an unknown pair), offers a pair unknown now
+  (`progress.PlanOutcomes`: not if it changed nothing, closed a cycle or ended in scenes of
+  known pairs), and no known plan once as many known plans as the deepest plan were made
+  since the last experiment on an unknown pair (`detour_too_long`); nor is a table placement
+  that could only move a loose block; the
   best other plan worth making is made instead, and only when there is none is the setting
   changed (within the same `setting_changes` bound).
 - A pair never offered in `unrealisable_after` logged settings offering its height is one the
@@ -38,12 +42,12 @@ from typing import Any, Protocol
 import numpy as np
 
 from .environment import Environment, PlacementUnavailable
-from .explorer import MODE_NAMES, PLAN, Choice, Explorer, NoRouteToUnknown, Step, Strategy
+from .explorer import MODE_NAMES, Choice, Explorer, NoRouteToUnknown, Step, Strategy
 from .planner import clip_margin
 from .predictors import PredictorBank, QueryRule, one_hot_with_bias
 from .progress import (
-    FutilePlans,
     Offer,
+    PlanOutcomes,
     Realisability,
     offer_of,
     unknown_offered,
@@ -200,7 +204,8 @@ class RobotEnvironment(Environment, Protocol):
 
 
 #: why the loop changed the setting instead of making a planned placement (NoRouteToUnknown)
-SETTING_CHANGES = frozenset({"no_route_to_unknown", "plan_changed_nothing", "table_to_table"})
+SETTING_CHANGES = frozenset({"no_route_to_unknown", "plan_leads_nowhere", "detour_too_long",
+                             "table_to_table"})
 
 #: drops that leave the setting as it was: trying it again can only fail again
 STILL_SETTING_REASONS = frozenset({"no_usable_instance"})
@@ -243,7 +248,7 @@ class RobotLoop:
         self._table_only = 0
         self._setting_changes = 0  # in a row, since the last experiment
         self.done_this_session = 0
-        self.futile = FutilePlans()
+        self.outcomes = PlanOutcomes(depth=explorer.bank.unknown.shape[0] - 1)
         self._offer: Offer = frozenset()
         self._scene: tuple = ()
         self._unknown_offered = -1
@@ -273,11 +278,13 @@ class RobotLoop:
     def _on_setting(self, setting) -> None:
         self._offer = offer_of(setting)
         stacks = getattr(self.environment, "stack_heights", lambda: ())()
-        self._scene = (self._offer, tuple(stacks))
+        # told apart by the heights offered and the stacks, not by every action offered: the
+        # actions offered on a stack vary with where exactly its top block came to rest, and a
+        # cycle through scenes that differ only in that would go unnoticed
+        self._scene = (frozenset(h for h, _ in self._offer), tuple(stacks))
         self._unknown_offered = unknown_offered(self.explorer.bank, self._offer)
-        if self.futile.observed(self._scene):
-            self.logger.info("the last planned placement led back to a setting of this chain: "
-                             "it is not made again there")
+        if self.outcomes.observed(self._scene, self._offer):
+            self.logger.info("the last placement left the setting as it was")
 
     def _unknown_realisable(self) -> np.ndarray | None:
         """Unknown pairs the arm can realise (the planner plans on what it realises); None for
@@ -299,8 +306,12 @@ class RobotLoop:
     def _worth_making(self, strategy: Strategy, choice: Choice) -> str | None:
         if not self.policy.setting_changes or self._setting_changes >= self.policy.setting_changes:
             return None  # resets did not help (or are not wanted): follow the plan
-        if self.futile.is_futile(self._scene, choice.state, choice.action):
-            return "plan_changed_nothing"
+        unknown = self.explorer.bank.unknown
+        if not unknown[choice.state, choice.action]:
+            if self.outcomes.detour_too_long:
+                return "detour_too_long"
+            if self.outcomes.leads_nowhere(self._scene, choice.state, choice.action, unknown):
+                return "plan_leads_nowhere"
         if getattr(self.environment, "moves_a_loose_block", lambda _: False)(choice):
             return "table_to_table"  # a new stack of one where one already lies: no change
         return None if leads_towards_unknown(strategy, choice) else "no_route_to_unknown"
@@ -340,7 +351,6 @@ class RobotLoop:
                 self.run_one()
                 failures = 0
             except NoRouteToUnknown as exc:
-                self.futile.dead_end()
                 self._setting_changes += 1
                 self.dropped[exc.reason] += 1
                 self.dropped_total[exc.reason] += 1
@@ -379,11 +389,9 @@ class RobotLoop:
         if self.realisability is not None:
             self.realisability.note(self._offer)
             self._plan_on_realisable()
-        if step.mode == PLAN and not self.explorer.bank.rule.is_query(
-                np.array(step.margin_before), np.array(step.chi_before)):
-            self.futile.made(self._scene, step.state, step.action)
-        else:
-            self.futile.learned()
+        known = not self.explorer.bank.rule.is_query(np.array(step.margin_before),
+                                                     np.array(step.chi_before))
+        self.outcomes.made(self._scene, step.state, step.action, known)
         self.environment.mark_scene_changed()
         self.on_experiment(record, step)
         # A scene that offers nothing but the table (a stack whose top is beyond reach and
@@ -431,7 +439,7 @@ class RobotLoop:
             # the next observation must be of the new scene, not of whatever the memory had
             # folded in when the reset returned (that depended on thread timing)
             self.environment.mark_scene_changed()
-            self.futile.restart()
+            self.outcomes.restart()
             self.resets += 1
             self._resets_since_experiment += 1
             self.logger.info(f"reset the world ({reason}): {message}")

@@ -126,6 +126,35 @@ def bootstrap_result(arrays: Sequence[np.ndarray], statistic: Statistic, resampl
                            method="percentile", rng=np.random.default_rng(seed))
 
 
+def mean_band(curves: np.ndarray, resamples: int = 2_000, seed: int = SEED,
+              level: float = LEVEL) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A learning curve's mean over seeds and its bootstrap interval at every point: `curves`
+    is (seeds, points); returns (mean, low, high), each (points,). With fewer than three seeds
+    (MIN_SEEDS) the band is the range of the seeds: the percentile bootstrap of two values is
+    the two values themselves. Points where a seed has no value use the seeds that have one."""
+    curves = np.asarray(curves, dtype=float)
+    if curves.ndim != 2 or curves.shape[0] == 0:
+        raise ValueError("curves must be (seeds, points) with at least one seed")
+    mean = np.full(curves.shape[1], np.nan)
+    low, high = mean.copy(), mean.copy()
+    finite = np.isfinite(curves)
+    for count in np.unique(finite.sum(axis=0)):
+        if count == 0:
+            continue
+        cols = np.flatnonzero(finite.sum(axis=0) == count)
+        # the seeds with a value, column by column: (count, len(cols))
+        values = np.array([curves[finite[:, c], c] for c in cols]).T
+        mean[cols] = values.mean(axis=0)
+        if count < MIN_SEEDS:
+            low[cols], high[cols] = values.min(axis=0), values.max(axis=0)
+            continue
+        res = stats.bootstrap((values,), np.mean, n_resamples=resamples, vectorized=True,
+                              axis=0, confidence_level=level, method="percentile",
+                              rng=np.random.default_rng(seed))
+        low[cols], high[cols] = res.confidence_interval.low, res.confidence_interval.high
+    return mean, low, high
+
+
 def seeds_to_decide(estimate: Estimate, claimed: Claimed, power: float = POWER,
                     level: float = LEVEL) -> int | None:
     """Seeds per group that would decide an undecided claim, a normal approximation: with the

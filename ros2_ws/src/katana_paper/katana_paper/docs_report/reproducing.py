@@ -10,7 +10,7 @@ from . import reproducing_text as prose
 from .claims import RunSection, heights_of, ranking
 from .formatting import Json, display, experiments_of, finite, get, num, strategies_of, table
 from .provenance import made_by, not_measured, paper_command
-from .reproducing_robot import robot_section, skill_section, truth_section
+from .reproducing_robot import robot_section, skill_section, study_section, truth_section
 from .sources import GENERATED
 
 
@@ -68,6 +68,8 @@ def render_reproducing(results: Mapping) -> str:
         truth_section(results.get("robot-truth")), "",
         "### Runs against the truth", "",
         robot_section(results.get("robot-paper"), results.get("robot-paper-claims")), "",
+        "### The study at the claims' scale", "", prose.STUDY_ABOUT, "",
+        study_section(results.get("robot-study"), results.get("robot-study-claims")), "",
         "### The stacking skill (Figure 14)", "", prose.SKILL_ABOUT, "",
         skill_section(results.get("robot-skill")), "",
         "## Beyond the paper: baselines", "", prose.BASELINES_ABOUT, "",

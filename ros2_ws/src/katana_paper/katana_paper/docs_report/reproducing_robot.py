@@ -104,6 +104,34 @@ robot_section = RunSection("robot-paper", _robot_settings, prose.ROBOT_TABLE, ro
                            prose.ROBOT_CLAIMS)
 
 
+#: the full study of `make robot-study`: seeds x strategies x experiments
+FULL_STUDY = (20, 8, 120)
+
+
+def _study_settings(data: Json) -> str:
+    """The study's command, its runs and what an experiment costs, with the full study's
+    projected wall time at the same cost."""
+    costs = [s.get("s_per_experiment") for s in strategies_of(data).values()
+             if finite(s.get("s_per_experiment"))]
+    jobs = get(data, "jobs")
+    if not costs or not finite(jobs) or not jobs:
+        return _robot_settings(data)
+    cost = sorted(costs)[len(costs) // 2]
+    seeds, strategies, experiments = FULL_STUDY
+    hours = seeds * strategies * experiments * cost / jobs / 3600
+    return (_robot_settings(data)
+            + f" An experiment took {num(cost, 2)} s in each run (the median over the runs), "
+            f"with {jobs} runs at a time: the full study (`make robot-study`, {seeds} seeds x "
+            f"{strategies} strategies x {experiments} experiments) takes about "
+            f"{num(hours, 1)} hours on this machine, or a Ray cluster by "
+            "`STUDY_ADDRESS=ray://HEAD:10001`.")
+
+
+#: the study: section 3.3's runs at the scale the claims need (make robot-study)
+study_section = RunSection("robot-study", _study_settings, prose.ROBOT_TABLE, robot_runs_table,
+                           prose.STUDY_CLAIMS)
+
+
 def skill_section(data: Json) -> str:
     """The skill trials: stacks built, placements per success and falls of each model."""
     if data is None:

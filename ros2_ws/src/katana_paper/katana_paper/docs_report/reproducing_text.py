@@ -80,6 +80,15 @@ ROBOT_TABLE = ("KL(measured truth || learned) per height at the end of the runs 
                "mean over the measured heights), means of the seeds; an experiment is wasted "
                "when its pair was known and it led nowhere:")
 ROBOT_CLAIMS = "The paper's claims of section 3.3, against these runs:"
+STUDY_ABOUT = """\
+`make robot-paper` is too short to decide most of section 3.3's claims. `make robot-study`
+runs them at the scale they need: every strategy, 20 seeds, 120 experiments, on Ray (each run a
+task in its own ROS domain; `STUDY_ADDRESS` for a cluster whose machines share the folder), then
+`katana-robot claims` on the result. It resumes and keeps complete runs, so it can run in
+pieces; the part below is q1 and random over 12 seeds. Its learning curves, the mean KL over
+the seeds with 95 % bootstrap bands per height and overall, are `kl.png` in the study's folder
+(docs/figures/robot_study_kl.png)."""
+STUDY_CLAIMS = "The paper's claims of section 3.3, against the study:"
 
 TRUTH_ABOUT = """\
 For every (height, action), `katana-robot truth` resets the sim, stacks blocks squarely

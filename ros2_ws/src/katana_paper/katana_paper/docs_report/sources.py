@@ -47,6 +47,12 @@ SOURCES: dict[str, Source] = {
         Source("robot-paper-claims", "docs/results/robot-paper/claims.json",
                "runs/robot-paper/claims.json",
                "katana-robot claims runs/robot-paper --truth docs/robot_truth.json"),
+        Source("robot-study", "docs/results/robot-study/summary.json",
+               "runs/robot-study/summary.json",
+               "make robot-study STUDY_SEEDS=12 STUDY_STRATEGIES=q1,random"),
+        Source("robot-study-claims", "docs/results/robot-study/claims.json",
+               "runs/robot-study/claims.json",
+               "katana-robot claims runs/robot-study --truth docs/robot_truth.json"),
         Source("robot-skill", "docs/results/robot-skill/skill.json",
                "runs/robot-skill/skill.json",
                "katana-robot skill --goal-height 3 --trials 10 "
