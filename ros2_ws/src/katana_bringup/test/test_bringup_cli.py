@@ -14,11 +14,12 @@ import subprocess
 import pytest
 import rclpy
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 from katana_bringup import demo, graph_params, run
 from katana_common.cli_testing import (
     bad_working_folder,
+    cli_settings,
     floats_outside,
     folders,
     ints_outside,
@@ -35,8 +36,7 @@ from katana_common.param_files import TOLERATED_UNDECLARED
 from katana_curiosity.core.strategies import STRATEGIES
 from katana_driver import emulator
 
-CHECKS = settings(suppress_health_check=[HealthCheck.function_scoped_fixture], deadline=None,
-                  max_examples=25)
+CHECKS = cli_settings(25)
 
 
 DEMO_OPTIONS = {
@@ -274,8 +274,7 @@ def test_katana_run_checks_only_the_started_nodes_cross_rules(workdir, capsys):
     (["katana-run", "--params", "p.yaml"], "argument --params: p.yaml:1: no node named"),
 ])
 def test_the_console_scripts_refuse_with_exit_2_and_no_traceback(tmp_path, argv, named):
-    if shutil.which(argv[0]) is None:
-        pytest.skip(f"{argv[0]} is not installed (make setup, source scripts/env.sh)")
+    assert shutil.which(argv[0]), f"{argv[0]} is not installed (make setup, source scripts/env.sh)"
     (tmp_path / "p.yaml").write_text("curiosty_node:\n  ros__parameters: {}\n")
     proc = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True, timeout=60,
                           env=dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="OFF"))

@@ -9,6 +9,7 @@ import argparse
 import os
 from collections.abc import Callable
 
+from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 
 #: words that are no number (nor nan/inf, which float() takes)
@@ -16,6 +17,13 @@ words = st.from_regex(r"[A-Za-z_][A-Za-z0-9_]{0,10}", fullmatch=True).filter(
     lambda t: t.lower() not in ("nan", "inf", "infinity"))
 #: plain file and folder names
 names = st.from_regex(r"[a-z][a-z0-9_]{0,10}", fullmatch=True)
+
+
+def cli_settings(max_examples: int) -> settings:
+    """hypothesis settings of a command-line property test: tmp_path (a function-scoped
+    fixture) is the working folder every example leaves as it found it."""
+    return settings(suppress_health_check=[HealthCheck.function_scoped_fixture], deadline=None,
+                    max_examples=max_examples)
 
 
 def refused(main: Callable[[list[str]], object], argv: list[str], capsys) -> str:

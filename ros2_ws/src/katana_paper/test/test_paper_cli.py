@@ -6,10 +6,11 @@ in-process (main(argv) with a temporary folder as the working folder)."""
 from __future__ import annotations
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 from katana_common.cli_testing import (
     bad_working_folder,
+    cli_settings,
     floats_outside,
     folders,
     ints_outside,
@@ -24,8 +25,7 @@ from katana_common.cli_testing import (
 from katana_curiosity.core.strategies import STRATEGIES
 from katana_paper import curiosity_cli, robot_cli
 
-CHECKS = settings(suppress_health_check=[HealthCheck.function_scoped_fixture], deadline=None,
-                  max_examples=30)
+CHECKS = cli_settings(30)
 
 _strategy_lists = not_one_of(STRATEGIES) | st.sampled_from([",", "q1,bogus", ""])
 _bands = st.sampled_from(["0.9,0.1", "0.5", "a,b", "-0.1,0.5", "0.2,1.5", "nan,0.5", ""])

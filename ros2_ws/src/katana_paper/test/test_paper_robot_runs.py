@@ -7,7 +7,6 @@ import sys
 import threading
 import time
 
-import pytest
 from katana_paper.robot_runs import leased_domain
 
 
@@ -74,7 +73,6 @@ time.sleep(30)
 """
 
 
-@pytest.mark.skipif(sys.platform != "linux", reason="the parent-death signal is Linux's prctl")
 def test_a_run_is_interrupted_when_the_worker_that_started_it_is_killed(tmp_path) -> None:
     """A Ray worker killed by a cancel or a shutdown takes its katana-demo with it (SIGINT, so
     that the run keeps what it recorded) rather than leaving it running."""
