@@ -90,6 +90,20 @@ def test_graph_matches_design_and_stacks_a_block(ros_graph, graph_offers):
     assert math.hypot(blocks["red"].pose.position.x - blue.pose.position.x,
                       blocks["red"].pose.position.y - blue.pose.position.y) < 0.005
 
+    # a block id that does not exist, at a spot where no block lies: over at the grasp
+    ghost = PickAndPlace.Goal(block_id="ghost", pick=blocks["green"].pose,
+                              block_size=blocks["green"].size, place=goal.place)
+    ghost.pick.position.x, ghost.pick.position.y = next(
+        (x, y) for x, y in [(0.16, 0.09), (0.16, -0.09), (0.24, 0.12), (0.24, -0.12)]
+        if all(math.hypot(b.pose.position.x - x, b.pose.position.y - y) > 0.06
+               for b in blocks.values()))
+    phases.clear()
+    handle = g.result(client.send_goal_async(
+        ghost, feedback_callback=lambda fb: phases.append(fb.feedback.phase)))
+    res = g.result(handle.get_result_async(), timeout=60.0)
+    assert res.result.error_code == PickAndPlace.Result.GRASP_MISSED, res.result.message
+    assert "grasp" in phases and not {"lift", "carry", "lower", "release"} & set(phases)
+
 
 def test_block_memory_follows_a_hand_sent_pick_and_place_on_sim_time(ros_graph):
     """No curiosity node: block memory learns the new levels from the detections alone, and

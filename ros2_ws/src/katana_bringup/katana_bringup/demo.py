@@ -51,7 +51,7 @@ from .run import (
     graph_params_check,
     split_ros_args,
 )
-from .run_report import append_session, read_sessions, write_report
+from .run_report import SessionClock, close_killed_session, read_sessions, write_report
 
 #: the specs of the parameters the options set: an option is checked by its parameter's rule
 _CURIOSITY = {p.name: p for p in CURIOSITY_PARAMS}
@@ -129,6 +129,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--real-time-factor", type=from_spec(_SIM["real_time_factor"]),
                         default=0.0,
                         help="sim pace: 0 as fast as possible (default), 1 wall-clock")
+    parser.add_argument("--quarantine-bad-lines", action="store_true",
+                        help="resuming: move bad lines of the experience log to "
+                        "experience.jsonl.quarantine (the log as it was kept beside) and go on")
     parser.add_argument("--timeout", type=positive_seconds, default=None, metavar="S",
                         help="give up after S wall seconds (default: 30 s per experiment)")
     return parser
@@ -143,6 +146,8 @@ def demo_options(args, params: ParamSet) -> None:
     params.set(curiosity, "seed", args.seed, "--seed")
     if args.strategy:
         params.set(curiosity, "strategy", args.strategy, "--strategy")
+    if args.quarantine_bad_lines:
+        params.set(curiosity, "quarantine_bad_lines", True, "--quarantine-bad-lines")
     if not args.params:
         # Headless: nobody looks at the debug image (its drawing would take the shared
         # process's CPU from the physics).
@@ -170,11 +175,11 @@ def parse(argv: list[str] | None) -> tuple[argparse.Namespace, list[str]]:
 
 
 def report(out: Path, args, learner, recorder: FrameRecorder, finished: bool,
-           wall: float) -> dict:
+           clock: SessionClock) -> dict:
     """Keep this session's figures beside the log (so a resumed run's summary covers all of
-    them), then write summary.json and the figures of the whole run."""
-    append_session(out, {
-        "experiments_at_end": learner.experiments, "wall_s": round(wall, 1),
+    them, killed sessions included), then write summary.json and the figures of the run."""
+    clock.close({
+        "experiments_at_end": learner.experiments,
         "frames": [p.name for p in recorder.saved],
         "judge_checked": len(recorder.agreement), "judge_agreed": int(sum(recorder.agreement)),
         "dropped_by_reason": dict(learner.loop.dropped_total), "resets": learner.loop.resets,
@@ -213,9 +218,15 @@ def main(argv: list[str] | None = None) -> int:
         if new_folder and not any(out.iterdir()):
             out.rmdir()
         return EXIT_INVALID_CONFIGURATION
+    killed = close_killed_session(out)
+    if killed is not None:
+        print(f"katana-demo: the previous session was killed; its {killed['wall_s']:.0f} s are "
+              f"kept in {out / 'sessions.jsonl'}", flush=True)
     recorder_node = Node("demo_frame_recorder")
     recorder = FrameRecorder(recorder_node, out / "frames", ground_truth=args.backend == "sim")
     learner = next(n for n in nodes if n.get_name() == "curiosity_node")
+    clock = SessionClock(out, learner.experiments)
+    recorder_node.create_timer(1.0, lambda: clock.beat(learner.experiments))
     print(f"katana-demo: backend {args.backend}, {args.experiments} experiments "
           f"(strategy {learner.strategy_name}), run folder {out}", flush=True)
     start = time.monotonic()
@@ -228,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
         print("katana-demo: stopped before the last experiment; what was recorded is kept",
               file=sys.stderr)
     wall = time.monotonic() - start
-    summary = report(out, args, learner, recorder, finished, wall)
+    summary = report(out, args, learner, recorder, finished, clock)
     if summary["all_known_at"] is not None:
         print(f"katana-demo: every (height, action) pair the arm can realise was known after "
               f"{summary['all_known_at']} experiments")

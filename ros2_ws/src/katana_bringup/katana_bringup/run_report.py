@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import statistics
+import time
 from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
@@ -99,6 +101,58 @@ def append_session(run_dir: Path, session: dict) -> None:
     summary of a resumed run covers every session."""
     with open(Path(run_dir) / SESSIONS_NAME, "a", encoding="utf-8") as f:
         f.write(json.dumps(session, allow_nan=False) + "\n")
+
+
+OPEN_SESSION_NAME = "session.open.json"
+
+
+class SessionClock:
+    """The running session's time kept on disk (rewritten atomically every `beat`), so a run
+    killed mid-session still leaves its time: the next start closes it into sessions.jsonl
+    (`close_killed_session`)."""
+
+    def __init__(self, run_dir: Path, experiments_at_start: int) -> None:
+        self.path = Path(run_dir) / OPEN_SESSION_NAME
+        self.started = time.time()
+        self._start = time.monotonic()
+        self.beat(experiments_at_start)
+
+    @property
+    def wall_s(self) -> float:
+        return time.monotonic() - self._start
+
+    def beat(self, experiments: int) -> None:
+        """Rewrite the open session; a failed write (disk full) only leaves the last one."""
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        try:
+            tmp.write_text(json.dumps({"started": round(self.started, 3),
+                                       "wall_s": round(self.wall_s, 1),
+                                       "experiments_at_end": experiments}))
+            os.replace(tmp, self.path)
+        except OSError:
+            pass
+
+    def close(self, session: dict) -> None:
+        """This session ended (normally or by a signal): its record instead of the open one."""
+        append_session(self.path.parent, {**session, "wall_s": round(self.wall_s, 1)})
+        self.path.unlink(missing_ok=True)
+
+
+def close_killed_session(run_dir: Path) -> dict | None:
+    """A session left open by a killed run, closed into sessions.jsonl with the time and the
+    experiments of its last beat; None if there was none."""
+    path = Path(run_dir) / OPEN_SESSION_NAME
+    try:
+        open_session = json.loads(path.read_text(encoding="utf-8"))
+        session = {"experiments_at_end": int(open_session["experiments_at_end"]),
+                   "wall_s": float(open_session["wall_s"]), "completed": False, "killed": True}
+    except FileNotFoundError:
+        return None
+    except (ValueError, KeyError, TypeError):  # torn by the kill itself: its time is unknown
+        session = {"completed": False, "killed": True, "wall_s": 0.0}
+    append_session(run_dir, session)
+    path.unlink()
+    return session
 
 
 def read_sessions(run_dir: Path) -> list[dict]:

@@ -1,22 +1,40 @@
 """The robot run's record: ExperimentRecord, the log, replay validation and the summary."""
 
+import dataclasses
 import json
 import math
+import signal
+import subprocess
+import sys
+import zipfile
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from katana_bringup.run_report import append_session, read_sessions, write_report
+from katana_bringup.run_report import (
+    OPEN_SESSION_NAME,
+    SessionClock,
+    append_session,
+    close_killed_session,
+    read_sessions,
+    write_report,
+)
 from katana_curiosity.core.predictors import ALPHA, THETA_ROBOT
 from katana_curiosity.core.robot_loop import robot_bank
 from katana_curiosity.core.run_record import (
+    CheckpointError,
+    CheckpointVerdict,
     ExperienceLog,
     ExperimentRecord,
     InstanceRecord,
     LogError,
     RecordError,
+    check_checkpoint,
+    load_checkpoint,
+    read_checkpoint,
     replay,
+    save_checkpoint,
 )
 
 
@@ -159,3 +177,160 @@ def test_the_summary_says_whether_the_run_kept_learning(tmp_path) -> None:
     assert summary["longest_identical_plan_streak"] == 4
     assert summary["last_query"] == 7
     assert summary["setting_changes_by_reason"] == {"plan_leads_nowhere": 1}
+
+
+def _log_lines(path, n: int) -> list[bytes]:
+    log = ExperienceLog(path)
+    for i in range(n):
+        log.append(record(i, state=i % 4, action=1 + i % 6, label=1 if i % 3 else -1))
+    return path.read_bytes().splitlines(keepends=True)
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(2, 8), data=st.data())
+def test_bad_lines_are_quarantined_only_when_asked_and_nothing_is_lost(tmp_path_factory, n,
+                                                                       data) -> None:
+    path = tmp_path_factory.mktemp("log") / "experience.jsonl"
+    lines = _log_lines(path, n)
+    bad_at = sorted(data.draw(st.sets(st.integers(0, n - 1), min_size=1, max_size=n - 1)))
+    damage = data.draw(st.sampled_from([b"not json\n", b'{"index": 0, "state": 1}\n',
+                                        b"\xff\xfe\n"]))
+    damaged = [damage if i in bad_at else line for i, line in enumerate(lines)]
+    original = b"".join(damaged)
+    path.write_bytes(original)
+    with pytest.raises(LogError, match=f"experience.jsonl:{bad_at[0] + 1}: field"):
+        ExperienceLog(path)
+    assert path.read_bytes() == original, "refusing changes nothing"
+
+    log = ExperienceLog(path, quarantine_bad_lines=True)
+    kept = [json.loads(line) for i, line in enumerate(lines) if i not in bad_at]
+    assert [r.index for r in log.records] == list(range(len(kept))), "contiguous again"
+    for r, raw in zip(log.records, kept, strict=True):
+        assert (r.state, r.action, r.label, r.wall_time) == (
+            raw["state"], raw["action"], raw["label"], raw["wall_time"])
+    assert [number for number, _ in log.quarantined] == [i + 1 for i in bad_at]
+    assert log.quarantine_path.read_bytes() == damage * len(bad_at)
+    assert log.original_path.read_bytes() == original
+    assert ExperienceLog(path).records == log.records, "the new log reads without the option"
+
+
+def _bank():
+    return robot_bank(3, 6, ALPHA, THETA_ROBOT)
+
+
+def _checkpoint_after(path, records, experiments: int) -> None:
+    bank = _bank()
+    replay(bank, records[:experiments])
+    save_checkpoint(path, bank, experiments)
+
+
+@pytest.mark.parametrize("behind", [0, 1])
+def test_a_checkpoint_the_log_reproduces_is_kept(tmp_path, behind) -> None:
+    records = [record(i, state=i % 4, action=1 + i % 6, label=1 if i % 3 else -1)
+               for i in range(12)]
+    path = tmp_path / "learner.npz"
+    _checkpoint_after(path, records, 12 - behind)  # a crash between log and checkpoint: behind
+    before = path.read_bytes()
+    assert check_checkpoint(path, records, _bank) == CheckpointVerdict()
+    assert path.read_bytes() == before
+
+
+@pytest.mark.parametrize("case", ["ahead_of_the_log", "other_learner"])
+def test_a_checkpoint_the_log_does_not_reproduce_is_moved_aside_unchanged(tmp_path, case) -> None:
+    records = [record(i, state=i % 4, action=1 + i % 6, label=1 if i % 3 else -1)
+               for i in range(30)]
+    path = tmp_path / "learner.npz"
+    if case == "ahead_of_the_log":  # a valid 30-experiment checkpoint beside an empty log
+        _checkpoint_after(path, records, 30)
+        log = []
+    else:  # same length, other labels
+        _checkpoint_after(path, [dataclasses.replace(r, label=-r.label) for r in records], 30)
+        log = records
+    before = path.read_bytes()
+    verdict = check_checkpoint(path, log, _bank)
+    assert not path.exists() and verdict.aside.read_bytes() == before
+    assert verdict.aside.name == "learner.not-the-log-30-experiments.npz"
+    assert "goes on from the log" in verdict.message and str(verdict.aside) in verdict.message
+    assert load_checkpoint(verdict.aside)[1] == 30, "still a model"
+    path.write_bytes(before)  # the same again: moved aside under another name
+    assert check_checkpoint(path, log, _bank).aside.name == (
+        "learner.not-the-log-30-experiments.2.npz")
+
+
+def _not_zip(path):
+    path.write_bytes(b"\x93NUMPY garbage")
+
+
+def _cut_short(path):
+    path.write_bytes(path.read_bytes()[:200])
+
+
+def _flipped_byte(path):
+    with zipfile.ZipFile(path) as archive:
+        member = max(archive.infolist(), key=lambda m: m.compress_size)
+    data = bytearray(path.read_bytes())
+    start = member.header_offset + 30 + int.from_bytes(  # past the local header (APPNOTE 4.3.7)
+        data[member.header_offset + 26:member.header_offset + 28], "little") + int.from_bytes(
+        data[member.header_offset + 28:member.header_offset + 30], "little")
+    data[start + member.compress_size - 1] ^= 0xFF  # its data's last byte: the CRC fails
+    path.write_bytes(bytes(data))
+
+
+def _no_weights(path):
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("experiments.npy", b"")
+
+
+@pytest.mark.parametrize(("damage", "reason"), [
+    (_not_zip, "not an .npz archive"), (_cut_short, "not an .npz archive"),
+    (_flipped_byte, "damaged"), (_no_weights, "has no array")])
+def test_an_unreadable_checkpoint_is_moved_aside_with_the_true_reason(tmp_path, damage,
+                                                                       reason) -> None:
+    records = [record(i) for i in range(5)]
+    path = tmp_path / "learner.npz"
+    _checkpoint_after(path, records, 5)
+    damage(path)
+    damaged = path.read_bytes()
+    with pytest.raises(CheckpointError, match=reason):
+        read_checkpoint(path)
+    verdict = check_checkpoint(path, records, _bank)
+    assert not path.exists() and verdict.aside.name == "learner.unreadable.npz"
+    assert verdict.aside.read_bytes() == damaged
+    assert reason in verdict.message and "pickled" not in verdict.message
+
+
+_BEATING = """
+import sys, time
+from katana_bringup.run_report import SessionClock
+clock = SessionClock(sys.argv[1], 5)
+n = 5
+while True:
+    n += 1
+    clock.beat(n)
+    if n == 8:
+        print("beat", flush=True)
+    time.sleep(0.01)
+"""
+
+
+def test_a_killed_session_leaves_its_time_and_a_normal_one_replaces_its_open_record(
+        tmp_path) -> None:
+    append_session(tmp_path, {"wall_s": 2.0, "experiments_at_end": 5, "completed": False})
+    proc = subprocess.Popen([sys.executable, "-c", _BEATING, str(tmp_path)],
+                            stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline() == "beat\n"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    left = json.loads((tmp_path / OPEN_SESSION_NAME).read_text())
+    assert left["experiments_at_end"] >= 8 and left["wall_s"] >= 0.0
+    killed = close_killed_session(tmp_path)
+    assert killed == {"experiments_at_end": left["experiments_at_end"],
+                      "wall_s": left["wall_s"], "completed": False, "killed": True}
+    assert not (tmp_path / OPEN_SESSION_NAME).exists()
+    assert close_killed_session(tmp_path) is None, "closed once"
+    clock = SessionClock(tmp_path, killed["experiments_at_end"])
+    clock.close({"experiments_at_end": 20, "completed": True})
+    sessions = read_sessions(tmp_path)
+    assert [s["experiments_at_end"] for s in sessions] == [5, left["experiments_at_end"], 20]
+    assert [s.get("killed", False) for s in sessions] == [False, True, False]
+    assert not (tmp_path / OPEN_SESSION_NAME).exists()

@@ -16,7 +16,6 @@ import time
 from functools import partial
 from pathlib import Path
 
-import numpy as np
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.node_runner import run_node
 from katana_common.params import ParameterError, declare_parameters
@@ -41,7 +40,7 @@ from .core.run_record import (
     LOG_NAME,
     ExperienceLog,
     LogError,
-    load_checkpoint,
+    check_checkpoint,
     replay,
     save_checkpoint,
 )
@@ -63,14 +62,24 @@ class CuriosityNode(Node):
         self.bank = robot_bank(self.max_height, self.n_actions, p["alpha"], p["theta"])
         self.rule = self.bank.rule
         try:
-            self.log = ExperienceLog(self.run_dir / LOG_NAME)
+            self.log = ExperienceLog(self.run_dir / LOG_NAME, p["quarantine_bad_lines"])
             replayed = replay(self.bank, self.log.records, str(self.run_dir / LOG_NAME))
         except (LogError, OSError) as exc:
-            raise ParameterError(f"parameter 'run_dir': cannot resume: {exc}") from None
+            raise ParameterError(
+                f"parameter 'run_dir': cannot resume: {exc} (parameter 'quarantine_bad_lines' "
+                "true, katana-demo --quarantine-bad-lines, moves bad lines to a side file and "
+                "resumes)" if isinstance(exc, LogError) else
+                f"parameter 'run_dir': cannot resume: {exc}") from None
         if self.log.moved_aside:
             aside, size = self.log.moved_aside
             self.get_logger().warning(f"moved a torn last line ({size} bytes) aside to {aside}")
-        self._check_checkpoint(replayed)
+        if self.log.quarantined:
+            lines = "; ".join(f"line {n}: {why}" for n, why in self.log.quarantined)
+            self.get_logger().warning(
+                f"quarantined {len(self.log.quarantined)} bad line(s) of {self.log.path} to "
+                f"{self.log.quarantine_path} ({lines}); the log as it was is kept as "
+                f"{self.log.original_path}; resuming with {len(self.log)} experiments")
+        self._check_checkpoint()
         self._stop = threading.Event()
         self.finished = threading.Event()
         group = ReentrantCallbackGroup()
@@ -111,18 +120,13 @@ class CuriosityNode(Node):
             feasible=feasible_actions(self.max_height, self.n_actions,
                                       self.params["table_action"]))
 
-    def _check_checkpoint(self, replayed: int) -> None:
-        path = self.run_dir / CHECKPOINT_NAME
-        if not path.exists():
-            return
-        try:
-            bank, experiments = load_checkpoint(path)
-        except Exception as exc:  # a damaged checkpoint is only a cache: the log rebuilt it
-            self.get_logger().warning(f"ignoring unreadable checkpoint {path}: {exc}")
-            return
-        if experiments != replayed or not np.allclose(bank.w, self.bank.w, atol=1e-9):
-            self.get_logger().warning(
-                f"checkpoint has {experiments} experiments, the log {replayed}: the log wins")
+    def _check_checkpoint(self) -> None:
+        verdict = check_checkpoint(
+            self.run_dir / CHECKPOINT_NAME, self.log.records,
+            lambda: robot_bank(self.max_height, self.n_actions, self.params["alpha"],
+                               self.params["theta"]))
+        if verdict.message:
+            self.get_logger().warning(verdict.message)
 
     # -- lifecycle -----------------------------------------------------------------------
 

@@ -51,6 +51,8 @@ PARAMS = (
           "(live).", 0.0, 1.0, live=True),
     Param("run_dir", "runs/robot", "Folder of experience.jsonl and learner.npz; resumes.",
           nonempty=True),
+    Param("quarantine_bad_lines", False, "Move bad lines of the experience log to "
+          "experience.jsonl.quarantine and resume (false: a bad line stops the start, named)."),
     Param("max_experiments", 0, "Stop after this many experiments in total (0: never).",
           0, 10_000_000),
     Param("seed", 0, "Seed of the strategy's random choices.", 0, 2**31 - 1),

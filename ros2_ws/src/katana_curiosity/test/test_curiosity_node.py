@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import rclpy
 from katana_common.executor import MultiThreadedExecutor
+from katana_common.params import ParameterError
 from katana_common.testing import private_domain_id
 from katana_curiosity.core.robot_loop import POLICY_RESULTS, robot_bank
 from katana_curiosity.core.run_record import CHECKPOINT_NAME, load_checkpoint, replay
@@ -61,6 +62,42 @@ def test_a_restart_resumes_without_losing_or_repeating_an_experiment(tmp_path) -
     assert (tmp_path / "experience.jsonl.corrupt").read_bytes() == torn
     assert int(node.bank.examples.sum()) == 9
     assert len(fake.experiences) == 4, "only the new experiments are run"
+
+
+def test_a_checkpoint_the_log_does_not_hold_is_kept_aside_not_overwritten(tmp_path) -> None:
+    """A valid 30-experiment checkpoint beside an empty log: the run goes on from the log (0)
+    and its new checkpoint never replaces the old one, which is kept under a name saying why."""
+    run_graph(tmp_path, max_experiments=3)
+    (tmp_path / "experience.jsonl").write_bytes(b"")
+    before = (tmp_path / CHECKPOINT_NAME).read_bytes()
+    node, _, _ = run_graph(tmp_path, max_experiments=2)
+    aside = tmp_path / "learner.not-the-log-3-experiments.npz"
+    assert aside.read_bytes() == before
+    assert load_checkpoint(tmp_path / CHECKPOINT_NAME)[1] == 2 == len(read_log(tmp_path))
+
+
+def test_a_bad_line_stops_the_start_unless_quarantined(tmp_path) -> None:
+    run_graph(tmp_path, max_experiments=4)
+    path = tmp_path / "experience.jsonl"
+    lines = path.read_bytes().splitlines(keepends=True)
+    lines[1] = b'{"index": 1, "state": "two"}\n'
+    path.write_bytes(b"".join(lines))
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    try:
+        with pytest.raises(ParameterError, match="experience.jsonl:2: field 'action': is missing.*"
+                           "quarantine_bad_lines"):
+            Graph(tmp_path, 6)
+    finally:
+        rclpy.shutdown(context=context)
+    assert path.read_bytes() == b"".join(lines), "a refusal changes nothing"
+    with Graph(tmp_path, 6, quarantine_bad_lines=True) as g:
+        assert len(g.node.log) == 3
+        g.wait(g.node.finished.is_set, 30.0, "the experiment loop finishing")
+    records = read_log(tmp_path)
+    assert [r["index"] for r in records] == list(range(6))
+    assert (tmp_path / "experience.jsonl.quarantine").read_bytes() == lines[1]
+    assert (tmp_path / "experience.jsonl.before-quarantine").read_bytes() == b"".join(lines)
 
 
 def test_bad_instances_and_missed_grasps_do_not_stop_the_run(tmp_path) -> None:

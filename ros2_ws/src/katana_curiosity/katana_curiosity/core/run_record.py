@@ -7,14 +7,19 @@ log, which is exact because the RLS update is a deterministic function of the ex
 
 Reading never loses a valid record and never rewrites anything silently: a line cut by a crash
 mid-write (the last line, without its newline) is moved aside to `<log>.corrupt` and reported;
-any other bad line stops the reading with one message naming the file, the line and the field.
+any other bad line stops the reading with one message naming the file, the line and the field,
+unless the caller asked to quarantine bad lines: then they go to `<log>.quarantine`, the whole
+original log is kept as `<log>.before-quarantine`, and the log goes on without them. A
+checkpoint the log cannot reproduce (or cannot be read) is moved aside, never overwritten.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
+import zipfile
 from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -219,11 +224,17 @@ def _instance(value: Any) -> InstanceRecord | None:
 class ExperienceLog:
     """Append-only JSON-lines file of ExperimentRecords that survives a crash at any point."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, quarantine_bad_lines: bool = False) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.quarantine_bad_lines = quarantine_bad_lines
         #: set when a torn last line was moved aside: where to, and how many bytes
         self.moved_aside: tuple[Path, int] | None = None
+        #: set when bad lines were quarantined: (line number, reason) each
+        self.quarantined: list[tuple[int, str]] = []
+        #: where the quarantined lines and the whole original log went
+        self.quarantine_path: Path | None = None
+        self.original_path: Path | None = None
         self.records: list[ExperimentRecord] = self._read()
 
     def _read(self) -> list[ExperimentRecord]:
@@ -231,37 +242,55 @@ class ExperienceLog:
             return []
         data = self.path.read_bytes()
         records: list[ExperimentRecord] = []
+        bad: list[tuple[int, bytes, str]] = []  # quarantined: line number, raw line, reason
         good = 0
         lines = data.splitlines(keepends=True)
         for number, line in enumerate(lines, start=1):
             if not line.endswith(b"\n") and number == len(lines):
                 self._move_aside(data, good)  # cut by a crash mid-write: never recorded
                 break
-            where = f"{self.path}:{number}"
             try:
-                parsed = json.loads(line)
-            except ValueError as exc:  # JSONDecodeError and UnicodeDecodeError
-                detail = getattr(exc, "msg", None) or type(exc).__name__
-                raise LogError(f"{where}: field '(record)': not a JSON record ({detail})"
-                               ) from None
-            try:
-                record = ExperimentRecord.from_mapping(parsed)
+                record = self._parse(line, expected=len(records) + len(bad))
             except RecordError as err:
-                raise LogError(f"{where}: {err}") from None
-            if record.index != len(records):
-                what = "a duplicate" if record.index < len(records) else "a gap"
-                raise LogError(f"{where}: field 'index': {record.index} is {what} "
-                               f"(expected {len(records)})")
-            records.append(record)
+                if not self.quarantine_bad_lines:
+                    raise LogError(f"{self.path}:{number}: {err}") from None
+                bad.append((number, line, str(err)))
+            else:  # after a quarantined line the index goes on from the last kept record
+                records.append(record if not bad else _renumbered(record, len(records)))
             good += len(line)
+        if bad:
+            self._quarantine(bad, records, data)
         return records
 
+    @staticmethod
+    def _parse(line: bytes, expected: int) -> ExperimentRecord:
+        try:
+            parsed = json.loads(line)
+        except ValueError as exc:  # JSONDecodeError and UnicodeDecodeError
+            detail = getattr(exc, "msg", None) or type(exc).__name__
+            raise RecordError("(record)", f"not a JSON record ({detail})") from None
+        record = ExperimentRecord.from_mapping(parsed)
+        if record.index != expected:
+            what = "a duplicate" if record.index < expected else "a gap"
+            raise RecordError("index", f"{record.index} is {what} (expected {expected})")
+        return record
+
+    def _quarantine(self, bad: list[tuple[int, bytes, str]], records: list[ExperimentRecord],
+                    original: bytes) -> None:
+        """The bad lines to `<log>.quarantine` (raw, in order), the whole log as it was to
+        `<log>.before-quarantine`, then the log rewritten without them, atomically."""
+        self.original_path = _free_name(self.path, ".before-quarantine")
+        self.quarantine_path = _free_name(self.path, ".quarantine")
+        _write_synced(self.original_path, original)
+        _write_synced(self.quarantine_path, b"".join(line if line.endswith(b"\n") else line + b"\n"
+                                                     for _, line, _ in bad))
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        _write_synced(tmp, "".join(r.to_json() + "\n" for r in records).encode())
+        os.replace(tmp, self.path)
+        self.quarantined = [(number, reason) for number, _, reason in bad]
+
     def _move_aside(self, data: bytes, good: int) -> None:
-        aside = self.path.with_name(self.path.name + ".corrupt")
-        n = 1
-        while aside.exists():
-            n += 1
-            aside = self.path.with_name(f"{self.path.name}.corrupt.{n}")
+        aside = _free_name(self.path, ".corrupt")
         aside.write_bytes(data[good:])
         with open(self.path, "r+b") as f:
             f.truncate(good)
@@ -281,6 +310,28 @@ class ExperienceLog:
             f.flush()
             os.fsync(f.fileno())
         self.records.append(record)
+
+
+def _free_name(path: Path, suffix: str, extension: str = "") -> Path:
+    """`<path><suffix><extension>`, or with .2, .3, ... before the extension if taken: a file
+    moved aside never replaces another."""
+    aside = path.with_name(path.name + suffix + extension)
+    n = 1
+    while aside.exists():
+        n += 1
+        aside = path.with_name(f"{path.name}{suffix}.{n}{extension}")
+    return aside
+
+
+def _write_synced(path: Path, data: bytes) -> None:
+    with open(path, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _renumbered(record: ExperimentRecord, index: int) -> ExperimentRecord:
+    return dataclasses.replace(record, index=index)
 
 
 def save_checkpoint(path: Path, bank: PredictorBank, experiments: int, **extra: float) -> None:
@@ -319,3 +370,72 @@ def replay(bank: PredictorBank, records: Iterable[ExperimentRecord], source: str
     for record in records:
         bank.update(record.state, record.action_index, float(record.label))
     return len(records)
+
+
+class CheckpointError(ValueError):
+    """A checkpoint file cannot be read; the message says what is wrong with it."""
+
+
+def read_checkpoint(path: Path) -> tuple[PredictorBank, int]:
+    """load_checkpoint with the true reason when it fails (np.load alone calls any non-zip
+    file "pickled data")."""
+    path = Path(path)
+    try:
+        with zipfile.ZipFile(path) as archive:
+            damaged = archive.testzip()
+            names = archive.namelist()
+    except zipfile.BadZipFile:
+        raise CheckpointError("not an .npz archive (not a zip file: cut short or overwritten)"
+                              ) from None
+    except OSError as exc:
+        raise CheckpointError(f"cannot be read ({exc.strerror or exc})") from None
+    if damaged is not None:
+        raise CheckpointError(f"its array {damaged!r} is damaged (CRC mismatch)")
+    missing = sorted({"experiments.npy", "w.npy", "a_inv.npy", "heights.npy"} - set(names))
+    if missing:
+        raise CheckpointError(f"has no array {missing[0].removesuffix('.npy')!r}")
+    try:
+        return load_checkpoint(path)
+    except (ValueError, KeyError, TypeError) as exc:
+        raise CheckpointError(f"its arrays do not make a learner ({exc})") from None
+
+
+@dataclass(frozen=True)
+class CheckpointVerdict:
+    """What resuming did with a checkpoint: `aside` is where it was moved (None: kept), and
+    `message` says why, for the user (None: nothing to say)."""
+
+    aside: Path | None = None
+    message: str | None = None
+
+
+def check_checkpoint(path: Path, records: list[ExperimentRecord], make_bank) -> CheckpointVerdict:
+    """Keep the checkpoint if the log reproduces it (it is the learner after its first
+    `experiments` records: a cache at most one experiment behind after a crash); otherwise move
+    it aside, never to be overwritten, under a name that says why. `make_bank()` gives an
+    untrained bank for the replay."""
+    path = Path(path)
+    if not path.exists():
+        return CheckpointVerdict()
+    try:
+        saved, experiments = read_checkpoint(path)
+    except CheckpointError as exc:
+        aside = _free_name(path.with_suffix(""), ".unreadable", ".npz")
+        os.replace(path, aside)
+        return CheckpointVerdict(aside, f"the checkpoint {path} {exc}; moved it to {aside}; "
+                                 "the learner is rebuilt from the log")
+    prefix = make_bank()
+    if experiments <= len(records):
+        replay(prefix, records[:experiments])
+        if saved.w.shape == prefix.w.shape and np.allclose(saved.w, prefix.w, atol=1e-9):
+            return CheckpointVerdict()
+        why = f"its learner is not the log's after {experiments} experiments"
+    else:
+        why = f"it has {experiments} experiments, the log {len(records)}"
+    aside = _free_name(path.with_suffix(""), f".not-the-log-{experiments}-experiments", ".npz")
+    os.replace(path, aside)
+    return CheckpointVerdict(aside, (
+        f"the checkpoint {path} disagrees with the log ({why}): the run goes on from the log "
+        f"(a run resumes only from its log: every experiment's record; a checkpoint holds "
+        f"only a learner). The checkpoint was moved to {aside}; to use its learner, load it as "
+        f"a model: katana-robot skill --model {aside}"))

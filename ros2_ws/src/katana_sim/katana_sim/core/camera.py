@@ -14,7 +14,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as p
 
 
 def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -69,9 +68,13 @@ class CameraModel:
         r = self.rotation
         eye = np.asarray(self.position, float)
         forward, down = r[:, 2], r[:, 1]
+        import pybullet as p  # noqa: PLC0415 - its banner (katana_sim.core.__getattr__)
+
         return p.computeViewMatrix(eye.tolist(), (eye + forward).tolist(), (-down).tolist())
 
     def projection_matrix(self) -> list[float]:
+        import pybullet as p  # noqa: PLC0415 - its banner (katana_sim.core.__getattr__)
+
         return p.computeProjectionMatrixFOV(
             self.vertical_fov_deg, self.width / self.height, self.near, self.far
         )
