@@ -33,10 +33,10 @@ from katana_common.cli_args import (
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.node_runner import EXIT_INVALID_CONFIGURATION, spin_nodes
 from katana_common.param_files import ParamSet
-from katana_common.qos import STATE_QOS
+from katana_common.qos import EVENT_QOS, STATE_QOS
 from katana_curiosity.node_params import PARAMS as CURIOSITY_PARAMS
 from katana_description.models import lies_flat
-from katana_interfaces.msg import BlockArray
+from katana_interfaces.msg import BlockArray, Experience
 from katana_sim.sim_params import PARAMS as SIM_PARAMS
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
@@ -52,6 +52,7 @@ from .run import (
     split_ros_args,
 )
 from .run_report import SessionClock, close_killed_session, read_sessions, write_report
+from .terminal import RunTerminal, experiment_line
 
 #: the specs of the parameters the options set: an option is checked by its parameter's rule
 _CURIOSITY = {p.name: p for p in CURIOSITY_PARAMS}
@@ -132,6 +133,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--quarantine-bad-lines", action="store_true",
                         help="resuming: move bad lines of the experience log to "
                         "experience.jsonl.quarantine (the log as it was kept beside) and go on")
+    parser.add_argument("--verbose", action="store_true",
+                        help="the nodes' log lines on the terminal (default: in the run "
+                        "folder's nodes.log, with a progress bar and one line per experiment "
+                        "on the terminal)")
     parser.add_argument("--timeout", type=positive_seconds, default=None, metavar="S",
                         help="give up after S wall seconds (default: 30 s per experiment)")
     return parser
@@ -208,13 +213,25 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     params = args.param_set.values(skip_option="--ros-args")  # rclpy reads those itself
 
+    terminal = RunTerminal(out, verbose=args.verbose)
+    try:
+        return _run(args, ros_args, params, out, new_folder, terminal)
+    finally:
+        terminal.close()
+
+
+def _run(args, ros_args: list[str], params: dict, out: Path, new_folder: bool,
+         terminal: RunTerminal) -> int:
     # katana-demo handles SIGINT/SIGTERM itself (spin_nodes): the nodes stop before the context
     rclpy.init(args=["katana-demo", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
     try:
         nodes = build_nodes(args.backend, params, record=args.record)
     except Exception as exc:  # what only a node finds (a run folder it cannot resume)
-        print(f"katana-demo: {' '.join(str(exc).split())}", file=sys.stderr)
         rclpy.try_shutdown()
+        terminal.close()  # the refusal on standard error, not in nodes.log
+        if terminal.log_path is not None and new_folder:
+            terminal.log_path.unlink(missing_ok=True)
+        print(f"katana-demo: {' '.join(str(exc).split())}", file=sys.stderr)
         if new_folder and not any(out.iterdir()):
             out.rmdir()
         return EXIT_INVALID_CONFIGURATION
@@ -227,13 +244,29 @@ def main(argv: list[str] | None = None) -> int:
     learner = next(n for n in nodes if n.get_name() == "curiosity_node")
     clock = SessionClock(out, learner.experiments)
     recorder_node.create_timer(1.0, lambda: clock.beat(learner.experiments))
+    shown = learner.experiments  # one line per logged experiment, from the log (complete)
+
+    def show_new(_msg=None) -> None:
+        nonlocal shown
+        records = learner.log.records
+        for record in records[shown:len(records)]:
+            terminal.experiment(experiment_line(record.index, record.mode, record.state,
+                                                record.action, record.label,
+                                                record.moved_block))
+        shown = len(records)
+
+    recorder_node.create_subscription(Experience, "curiosity/experience", show_new, EVENT_QOS)
     print(f"katana-demo: backend {args.backend}, {args.experiments} experiments "
-          f"(strategy {learner.strategy_name}), run folder {out}", flush=True)
+          f"(strategy {learner.strategy_name}), run folder {out}"
+          + (f"; the nodes' log: {terminal.log_path}" if terminal.log_path else ""), flush=True)
+    terminal.start(args.experiments, learner.experiments)
     start = time.monotonic()
     spin_nodes([*nodes, recorder_node], "katana-demo",
                duration_s=args.timeout or 30.0 * args.experiments + 60.0,
                executor=MultiThreadedExecutor(num_threads=EXECUTOR_THREADS),
                until=learner.finished, limit_s=KATANA_RUN_SHUTDOWN_LIMIT_S)
+    show_new()  # the last ones, whose messages the spin may have ended before
+    terminal.close()
     finished = learner.finished.is_set()
     if not finished:
         print("katana-demo: stopped before the last experiment; what was recorded is kept",
