@@ -44,3 +44,12 @@ CLOCK_QOS = QoSProfile(
     durability=DurabilityPolicy.VOLATILE,
     reliability=ReliabilityPolicy.BEST_EFFORT,
 )
+
+#: /diagnostics (diagnostic_msgs/DiagnosticArray), as diagnostic_updater publishes it and the
+#: aggregator and Foxglove subscribe (reliable, volatile)
+DIAGNOSTICS_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    durability=DurabilityPolicy.VOLATILE,
+    reliability=ReliabilityPolicy.RELIABLE,
+)

@@ -16,7 +16,10 @@ import time
 from functools import partial
 from pathlib import Path
 
+import numpy as np
+from katana_common.diagnostics import Diagnostics
 from katana_common.executor import MultiThreadedExecutor
+from katana_common.health import ERROR, OK, WARN, Health, RateMeter
 from katana_common.node_runner import run_node
 from katana_common.params import ParameterError, declare_parameters
 from katana_common.qos import EVENT_QOS, STATE_QOS
@@ -105,6 +108,9 @@ class CuriosityNode(Node):
         self._pending_lock = threading.Lock()
         p.on_change(self._on_live_change)
         self._thread: threading.Thread | None = None
+        self._phase = Health(OK, "starting")
+        self._rate = RateMeter(window_s=60.0)
+        self.diagnostics = Diagnostics(self, {"experiments": self.health})
         self.publish_state()
         self.get_logger().info(
             f"strategy {self.strategy_name}, heights 0..{self.max_height}, {self.n_actions} "
@@ -139,18 +145,39 @@ class CuriosityNode(Node):
     def _run(self) -> None:
         try:
             if not self.loop.finished_all:
+                self._phase = Health(WARN, "waiting for the arm and the graph")
                 self.environment.wait_until_ready(self.params["ready_timeout_s"])
                 self.get_logger().info("the arm and the graph are ready")
-            self.get_logger().info(self.loop.run())
+            self._phase = Health(OK, "running")
+            why = self.loop.run()
+            self._phase = Health(OK, why)
+            self.get_logger().info(why)
             self.publish_state()  # the last state, with all_known_at when that ended the run
         except Stopping:
-            pass
+            self._phase = Health(OK, "stopped")
         except TimeoutError as exc:
-            self.get_logger().error(f"not starting: {exc}")
+            self._phase = Health(ERROR, f"not starting: {exc}")
+            self.get_logger().error(self._phase.message)
         except Exception as exc:  # never die silently on the experiment thread
-            self.get_logger().error(f"the experiment loop stopped: {exc!r}")
+            self._phase = Health(ERROR, f"the experiment loop stopped: {exc!r}")
+            self.get_logger().error(self._phase.message)
         finally:
             self.finished.set()
+
+    def health(self) -> Health:
+        """/diagnostics: how the run goes (experiments per minute of wall time, attempts
+        dropped this session by reason, pairs still unknown)."""
+        unknown = self.loop.unknown_realisable_pairs()
+        left = self.bank.unknown if unknown is None else unknown
+        return Health(self._phase.level, self._phase.message, {
+            "experiments": self.experiments,
+            "experiments_per_min": 60.0 * self._rate.per_second(),
+            "dropped": sum(self.loop.dropped_total.values()),
+            **{f"dropped_{k}": v for k, v in sorted(self.loop.dropped_total.items())},
+            "resets": self.loop.resets,
+            "unknown_pairs_left": int(np.count_nonzero(left)),
+            "all_known_at": self.loop.all_known_at,
+        })
 
     def stop(self) -> None:
         """End every wait at once and the experiment thread (the log is fsynced per record)."""
@@ -205,6 +232,7 @@ class CuriosityNode(Node):
         self.experience_pub.publish(experience_msg(record, instance, stamp, self.frame_id))
         self.publish_state()
         self.marker_pub.publish(markers_msg(record, instance, stamp, self.frame_id))
+        self._rate.tick()
         rate = self.loop.done_this_session / max(time.monotonic() - self._started_at, 1e-9) * 60
         self.get_logger().info(
             f"experiment {record.index}: {record.mode} h={record.state} a={record.action} "

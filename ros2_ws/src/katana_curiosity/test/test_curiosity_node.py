@@ -12,8 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.params import ParameterError
+from katana_common.qos import DIAGNOSTICS_QOS
 from katana_common.testing import private_domain_id
 from katana_curiosity.core.robot_loop import POLICY_RESULTS, robot_bank
 from katana_curiosity.core.run_record import CHECKPOINT_NAME, load_checkpoint, replay
@@ -74,6 +76,32 @@ def test_a_checkpoint_the_log_does_not_hold_is_kept_aside_not_overwritten(tmp_pa
     aside = tmp_path / "learner.not-the-log-3-experiments.npz"
     assert aside.read_bytes() == before
     assert load_checkpoint(tmp_path / CHECKPOINT_NAME)[1] == 2 == len(read_log(tmp_path))
+
+
+def test_diagnostics_report_the_run_as_the_log_has_it(tmp_path) -> None:
+    """/diagnostics once a second: experiments, attempts dropped (by reason) and the pairs still
+    unknown, each equal to what the log and a replay of it say."""
+    with Graph(tmp_path, 5, {"unusable_first": 2}) as g:
+        statuses: list = []
+        g.probe.create_subscription(DiagnosticArray, "/diagnostics",
+                                    lambda msg: statuses.extend(msg.status), DIAGNOSTICS_QOS)
+        g.wait(g.node.finished.is_set, 30.0, "the experiment loop finishing")
+        count = len(statuses)
+        g.wait(lambda: len(statuses) > count, 5.0, "a status after the end")
+    status = statuses[-1]
+    assert status.name == "curiosity_node: experiments" and status.level == b"\x00"
+    values = {kv.key: kv.value for kv in status.values}
+    records = read_log(tmp_path)
+    dropped = sum(sum(r["dropped_before"].values()) for r in records)
+    assert values["experiments"] == str(len(records)) == "5"
+    assert values["dropped"] == str(dropped) == "2"
+    assert values["dropped_no_usable_instance"] == "2"
+    bank = robot_bank(3, 6, 1.0, 0.1)
+    replay(bank, g.node.log.records)
+    planner = g.node.explorer.strategy.planner  # q1 plans: the pairs the arm can realise
+    left = bank.unknown[:planner.top] & planner.feasible[:planner.top]
+    assert values["unknown_pairs_left"] == str(int(np.count_nonzero(left)))
+    assert float(values["experiments_per_min"]) > 0.0
 
 
 def test_a_bad_line_stops_the_start_unless_quarantined(tmp_path) -> None:

@@ -16,7 +16,9 @@ import sys
 
 import cv2
 import numpy as np
+from katana_common.diagnostics import Diagnostics
 from katana_common.executor import MultiThreadedExecutor
+from katana_common.health import RateMeter, stream_health
 from katana_common.node_runner import run_node
 from katana_common.params import Param, declare_parameters
 from katana_common.qos import EVENT_QOS, SENSOR_QOS, STATE_QOS
@@ -91,6 +93,9 @@ class PerceptionNode(Node):
         self.pub_detections = self.create_publisher(BlockArray, "perception/detections",
                                                     EVENT_QOS)
         self.pub_debug = self.create_publisher(Image, "perception/debug_image", SENSOR_QOS)
+        self.images = RateMeter(window_s=10.0)
+        self.diagnostics = Diagnostics(
+            self, {"camera": lambda: stream_health("images", self.images)})
         self.create_subscription(Image, "camera/image_raw", self.on_image, SENSOR_QOS)
         self.create_subscription(CameraInfo, "camera/camera_info", self.on_camera_info,
                                  SENSOR_QOS)
@@ -131,6 +136,7 @@ class PerceptionNode(Node):
         self.levels = {b.id: b.level for b in blocks}
 
     def on_image(self, msg: Image) -> None:
+        self.images.tick()
         rgb = decode_or_warn(self, "image", image_to_rgb, msg)
         if rgb is None:
             return

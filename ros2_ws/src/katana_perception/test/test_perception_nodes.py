@@ -11,9 +11,10 @@ import sys
 import numpy as np
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.params import ParameterError
-from katana_common.qos import STATE_QOS
+from katana_common.qos import DIAGNOSTICS_QOS, STATE_QOS
 from katana_common.testing import call_service, spin_until
 from katana_interfaces.msg import BlockArray, Experience
 from katana_interfaces.srv import FindPlacement, JudgePlacement, ObserveSetting
@@ -152,6 +153,28 @@ def test_perception_node_publishes_detections_and_survives_bad_images(ros):
         p = got[b.name].pose.position
         assert math.hypot(p.x - b.x, p.y - b.y) < 0.005
         assert got[b.name].on_top and got[b.name].visible and got[b.name].level == 1
+
+
+def test_perception_node_reports_the_camera_on_diagnostics(ros):
+    """WARN before the first image; then OK with as many images received as the node took."""
+    node = ros.make(PerceptionNode)
+    statuses = ros.collect(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
+    assert ros.spin_until(lambda: statuses)
+    first = statuses[-1].status[0]
+    assert first.name == "perception_node: camera" and first.level == b"\x01"
+    assert first.message == "no images yet"
+    assert ros.spin_until(lambda: ros.image_pub.get_subscription_count() > 0)
+    ros.camera_info()
+    for _ in range(3):
+        ros.image(SCATTER)
+        ros.spin_until(lambda: False, timeout_s=0.05)
+    assert ros.spin_until(lambda: node.images.count >= 1)
+    count = len(statuses)
+    assert ros.spin_until(lambda: len(statuses) > count, timeout_s=3.0)
+    status = statuses[-1].status[0]
+    values = {kv.key: kv.value for kv in status.values}
+    assert values["received"] == str(node.images.count)
+    assert status.level == b"\x00" or "no images for" in status.message
 
 
 def red_on_green_instance():

@@ -286,7 +286,7 @@ class RobotLoop:
         if self.outcomes.observed(self._scene, self._offer):
             self.logger.info("the last placement left the setting as it was")
 
-    def _unknown_realisable(self) -> np.ndarray | None:
+    def unknown_realisable_pairs(self) -> np.ndarray | None:
         """Unknown pairs the arm can realise (the planner plans on what it realises); None for
         a strategy that does not plan."""
         planner = getattr(self.explorer.strategy, "planner", None)
@@ -297,7 +297,7 @@ class RobotLoop:
     def _place_planned(self, setting, choice: Choice) -> Choice:
         """The environment's choice of instance, towards the lowest height above the choice
         where a pair the arm can realise is still unknown (the plan's next goal)."""
-        unknown = self._unknown_realisable()
+        unknown = self.unknown_realisable_pairs()
         above = [] if unknown is None else [
             h for h in range(choice.state + 1, len(unknown)) if unknown[h].any()]
         target = above[0] if above else choice.state + 1
@@ -318,7 +318,7 @@ class RobotLoop:
 
     def _everything_known(self) -> bool:
         """Whether no pair the arm can realise is unknown (said once, in the log)."""
-        unknown = self._unknown_realisable()
+        unknown = self.unknown_realisable_pairs()
         if unknown is None or unknown.any():
             self.all_known_at = None
             return False
