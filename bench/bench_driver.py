@@ -23,6 +23,7 @@ import subprocess
 import sys
 import time
 
+from control_msgs.action import FollowJointTrajectory
 from katana_bringup.in_process import InProcessGraph
 from katana_common.action_client import ActionClient
 from katana_common.messages import to_seconds
@@ -33,7 +34,6 @@ from katana_driver.core.transport import SerialTransport, TcpTransport
 from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
 from katana_driver.katana_driver_node import KatanaDriverNode
 from katana_driver.testing import FAULTS, POSE_B, FaultBench, trajectory
-from katana_interfaces.action import FollowJointTrajectory
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 
@@ -93,7 +93,7 @@ def _shutdown_times() -> dict:
     the node within 2 s)."""
     env = private_ros_env(PYTHONUNBUFFERED="1")
     goal = ("import rclpy\nfrom katana_driver.testing import POSE_B, trajectory\n"
-            "from katana_interfaces.action import FollowJointTrajectory as F\n"
+            "from control_msgs.action import FollowJointTrajectory as F\n"
             "from katana_common.action_client import ActionClient\nrclpy.init()\n"
             "n = rclpy.create_node('bench_goal')\n"
             "c = ActionClient(n, F, 'arm_controller/follow_joint_trajectory')\n"

@@ -42,6 +42,32 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "$want" > "$stamp"
 fi
 
+# Stand-ins of standard interfaces missing from PyPI (control_msgs, tf2_msgs: package.xml
+# exports <katana_stand_in/>) are built only where no installed package provides them, so on
+# a full ROS install the real one wins. A stand-in built here before would shadow it (the
+# workspace overlays the underlay): remove it.
+mapfile -t provided < <(VIRTUAL_ENV=$venv bash scripts/installed_stand_ins.sh "$root")
+for pkg in ${provided[@]+"${provided[@]}"}; do
+  echo "setup: $pkg is installed; not building the workspace's stand-in"
+  rm -rf "install/$pkg" "build/$pkg"
+done
+skip_args=()
+[ ${#provided[@]} -eq 0 ] || skip_args=(--packages-skip "${provided[@]}")
+
+# rosidl does not notice a removed .msg/.srv/.action: its generated sources in build/ still
+# name it and the build fails. An interface package whose set of interface files changed since
+# its last build (or is not on record) is built afresh.
+for dir in ros2_ws/src/*/; do
+  pkg=$(basename "$dir")
+  [ -d "build/$pkg" ] && { [ -d "${dir}msg" ] || [ -d "${dir}srv" ] || [ -d "${dir}action" ]; } \
+    || continue
+  now=$(cd "$dir" && ls -1 msg srv action 2>/dev/null || true)
+  if [ "$(cat "build/$pkg/.interface-files" 2>/dev/null)" != "$now" ]; then
+    echo "setup: the interface files of $pkg changed; building it afresh"
+    rm -rf "build/$pkg" "install/$pkg"
+  fi
+done
+
 # Build the workspace when any package file is newer than the last successful build.
 build_stamp=$root/install/.build-ok
 # Module folders are symlinked (--symlink-install), so editing or adding a module needs no build.
@@ -49,6 +75,7 @@ changed() {
   # a package that was never built (added while a build ran, or just now) needs one
   for pkg in ros2_ws/src/*/package.xml; do
     pkg=$(basename "$(dirname "$pkg")")
+    case " ${provided[*]-} " in *" $pkg "*) continue ;; esac  # installed: not built here
     [ -d "install/$pkg" ] || { echo "$pkg"; return; }
   done
   find ros2_ws/src -type f -newer "$build_stamp" -not -path '*/__pycache__/*' \
@@ -62,7 +89,7 @@ if [ ! -f "$build_stamp" ] || [ -n "$(changed)" ]; then
   export CMAKE_PREFIX_PATH=$venv AMENT_PREFIX_PATH=$venv
   mkdir -p log
   if ! colcon --log-base log build --base-paths ros2_ws/src --symlink-install \
-      --event-handlers console_direct- console_cohesion- status- \
+      --event-handlers console_direct- console_cohesion- status- ${skip_args[@]+"${skip_args[@]}"} \
       --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$venv/bin/python" \
       > log/colcon-build.out 2>&1; then
     grep -v 'local_setup' log/colcon-build.out >&2 || true
@@ -70,6 +97,11 @@ if [ ! -f "$build_stamp" ] || [ -n "$(changed)" ]; then
     exit 1
   fi
   grep -E '^Summary' log/colcon-build.out || true
+  for dir in ros2_ws/src/*/; do
+    pkg=$(basename "$dir")
+    [ -d "build/$pkg" ] || continue
+    (cd "$dir" && ls -1 msg srv action 2>/dev/null || true) > "build/$pkg/.interface-files"
+  done
   touch "$build_stamp"
 fi
 echo "setup: ready (source scripts/env.sh to use the workspace in a shell)"

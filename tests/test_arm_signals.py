@@ -10,11 +10,12 @@ import sys
 
 import pytest
 from builtin_interfaces.msg import Duration
+from control_msgs.action import FollowJointTrajectory
 from geometry_msgs.msg import Pose
 from katana_common.action_client import ActionClient
 from katana_common.testing import probe_node, spin_until, stop_process, use_private_domain
 from katana_description import models as m
-from katana_interfaces.action import FollowJointTrajectory, PickAndPlace
+from katana_interfaces.action import PickAndPlace
 from rcl_interfaces.srv import GetParameters
 from trajectory_msgs.msg import JointTrajectoryPoint
 

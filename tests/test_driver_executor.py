@@ -4,6 +4,7 @@ katana_driver and katana_manipulation together), also with spline replies delaye
 import pytest
 import rclpy
 from builtin_interfaces.msg import Duration
+from control_msgs.action import FollowJointTrajectory
 from geometry_msgs.msg import Pose, Vector3
 from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
@@ -12,7 +13,7 @@ from katana_description import models
 from katana_driver.core.encoders import ARM_JOINTS, EncoderModel
 from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
 from katana_driver.katana_driver_node import KatanaDriverNode
-from katana_interfaces.action import FollowJointTrajectory, PickAndPlace
+from katana_interfaces.action import PickAndPlace
 from katana_manipulation.pick_place_executor import PickPlaceExecutor
 from rclpy.action.client import GoalStatus
 from rclpy.context import Context

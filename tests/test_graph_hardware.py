@@ -25,8 +25,8 @@ pytestmark = pytest.mark.timeout(120)
 EXPECTED_NODES = {"katana_driver_node", "camera_node", "pick_place_executor", "perception_node",
                   "block_memory_node", "fovea_node", "curiosity_node"}
 EXPECTED_ACTIONS = {
-    "/arm_controller/follow_joint_trajectory": "katana_interfaces/action/FollowJointTrajectory",
-    "/gripper_controller/gripper_command": "katana_interfaces/action/GripperCommand",
+    "/arm_controller/follow_joint_trajectory": "control_msgs/action/FollowJointTrajectory",
+    "/gripper_controller/gripper_command": "control_msgs/action/GripperCommand",
     "/pick_and_place": "katana_interfaces/action/PickAndPlace",
 }
 EXPECTED_SERVICES = {

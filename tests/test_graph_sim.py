@@ -23,8 +23,8 @@ EXPECTED_TOPICS = {
     "/sim/ground_truth": "katana_interfaces/msg/BlockArray",
 }
 EXPECTED_ACTIONS = {
-    "/arm_controller/follow_joint_trajectory": "katana_interfaces/action/FollowJointTrajectory",
-    "/gripper_controller/gripper_command": "katana_interfaces/action/GripperCommand",
+    "/arm_controller/follow_joint_trajectory": "control_msgs/action/FollowJointTrajectory",
+    "/gripper_controller/gripper_command": "control_msgs/action/GripperCommand",
     "/pick_and_place": "katana_interfaces/action/PickAndPlace",
 }
 EXPECTED_SERVICES = {"/sim_node/reset_world": "katana_interfaces/srv/ResetWorld"}

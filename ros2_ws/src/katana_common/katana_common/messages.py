@@ -35,3 +35,13 @@ def duration_msg(seconds: float) -> Duration:
 def to_seconds(msg: Time | Duration) -> float:
     """Seconds of a builtin_interfaces Time or Duration."""
     return float(msg.sec) + float(msg.nanosec) * 1e-9
+
+
+def multi_dof_joints(goal) -> list[str]:
+    """Joints a control_msgs/FollowJointTrajectory goal names in its multi-DOF parts
+    (multi_dof_trajectory, component tolerances), "<unnamed>" for multi-DOF points without
+    names: the Katana has no multi-DOF joint, so the arm contract refuses a goal with any."""
+    traj = goal.multi_dof_trajectory
+    names = list(traj.joint_names) or (["<unnamed>"] if traj.points else [])
+    tolerances = (*goal.component_path_tolerance, *goal.component_goal_tolerance)
+    return names + [t.joint_name for t in tolerances]

@@ -14,6 +14,7 @@ import uuid
 
 import pytest
 import rclpy
+from control_msgs.action import GripperCommand
 from hypothesis import given
 from hypothesis import strategies as st
 from katana_common.action_client import ActionClient
@@ -24,7 +25,6 @@ from katana_common.node_runner import EXIT_INVALID_CONFIGURATION, EXIT_OK
 from katana_common.param_spec import Param
 from katana_common.params import ParameterError, declare_parameters
 from katana_common.testing import private_ros_env
-from katana_interfaces.action import GripperCommand
 from rclpy.action import ActionServer
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node

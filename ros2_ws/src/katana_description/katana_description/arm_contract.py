@@ -2,7 +2,7 @@
 
 ROS-free, so both nodes answer every goal the same way and the rules are tested without ROS.
 Joint names, limits and speeds come from :mod:`katana_description.models`; error codes are
-control_msgs/FollowJointTrajectory's (mirrored in katana_interfaces).
+control_msgs/FollowJointTrajectory's, the action both backends serve.
 
 API (stable; plain Python in, plain Python out):
 
@@ -10,22 +10,25 @@ API (stable; plain Python in, plain Python out):
   default_goal_time_tolerance_s=1.0, ...)``: the per-backend settings; ``ValueError`` when
   one is out of range. ``contract.limits`` and ``contract.max_speed`` give the joint facts.
 - ``TrajectoryGoal(joint_names, times_s, positions, velocities=None, path_tolerance={},
-  goal_tolerance={}, goal_time_tolerance_s=0.0)``: a FollowJointTrajectory goal. Rows of
+  goal_tolerance={}, goal_time_tolerance_s=0.0, multi_dof_joints=())``: a
+  FollowJointTrajectory goal; ``multi_dof_joints`` names the joints of its multi-DOF parts
+  (``multi_dof_trajectory``, component tolerances), which the Katana does not have. Rows of
   ``positions``/``velocities`` are in ``joint_names`` order; a velocity row may be empty (all
   rows empty = the arm stops at every point). Tolerances are ``{name: rad}`` or a sequence of
   ``(name, rad)`` pairs (pairs let duplicates be detected): 0 = the contract's default,
   negative = no tolerance (control_msgs' meaning).
 - ``validate_trajectory(goal, current, contract) -> Verdict``: ``Verdict(SUCCESSFUL, "")`` or
   the error code and a reason. ``current`` maps every arm joint to its measured angle (rad).
-  Checked: names (arm joints only, no duplicates, INVALID_JOINTS; a partial goal names a
-  subset and the other joints hold where they are), at least one point, finite times >= 0,
-  strictly increasing, last point within ``max_trajectory_s``; finite positions within the
-  model's limits (no wrapping: every Katana joint is a bounded revolute joint whose range
-  is under 2 pi, so ``q + 2 pi`` is a different, unreachable, command); velocities finite, one
-  per joint or none, zero at the last point (both backends stop there); a point at t = 0 within
-  ``START_JUMP_RAD`` of ``current``; the peak speed of every cubic Hermite segment (the first
-  from ``current`` at rest) within the joint's limit times ``speed_margin``; tolerances finite,
-  for joints of the goal, no duplicates; ``goal_time_tolerance_s`` finite and >= 0.
+  Checked: names (arm joints only, no duplicates, no multi-DOF parts, INVALID_JOINTS; a
+  partial goal names a subset and the other joints hold where they are), at least one point,
+  finite times >= 0, strictly increasing, last point within ``max_trajectory_s``; finite
+  positions within the model's limits (no wrapping: every Katana joint is a bounded revolute
+  joint whose range is under 2 pi, so ``q + 2 pi`` is a different, unreachable, command);
+  velocities finite, one per joint or none, zero at the last point (both backends stop there);
+  a point at t = 0 within ``START_JUMP_RAD`` of ``current``; the peak speed of every cubic
+  Hermite segment (the first from ``current`` at rest) within the joint's limit times
+  ``speed_margin``; tolerances finite, for joints of the goal, no duplicates;
+  ``goal_time_tolerance_s`` finite and >= 0.
 - ``complete_trajectory(goal, current) -> TrajectoryGoal``: the goal on all five arm joints in
   ``models.ARM_JOINTS`` order (joints a partial goal leaves out hold ``current``); velocities
   ``None`` when the goal gives none. Call it on a validated goal.
@@ -52,7 +55,7 @@ from typing import NamedTuple
 
 from katana_description import models as m
 
-# control_msgs/FollowJointTrajectory result codes (katana_interfaces mirrors them; a test checks).
+# control_msgs/FollowJointTrajectory result codes (tests compare them with the built type's).
 SUCCESSFUL = 0
 INVALID_GOAL = -1
 INVALID_JOINTS = -2
@@ -139,6 +142,7 @@ class TrajectoryGoal:
     path_tolerance: Tolerances = field(default_factory=dict)
     goal_tolerance: Tolerances = field(default_factory=dict)
     goal_time_tolerance_s: float = 0.0
+    multi_dof_joints: Sequence[str] = ()
 
 
 @dataclass
@@ -214,6 +218,12 @@ def validate_trajectory(
         )
     if len(set(names)) != len(names):
         return Verdict(INVALID_JOINTS, f"duplicate joint names {names}")
+    if goal.multi_dof_joints:
+        return Verdict(
+            INVALID_JOINTS,
+            (f"multi-DOF joints {list(goal.multi_dof_joints)}: the Katana has none (leave "
+             "multi_dof_trajectory and the component tolerances empty)"),
+        )
     times = [float(t) for t in goal.times_s]
     if not times:
         return Verdict(INVALID_GOAL, "the trajectory has no points")

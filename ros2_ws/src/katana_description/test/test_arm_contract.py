@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from pathlib import Path
@@ -18,7 +19,7 @@ CONTRACT = ac.ArmContract()
 REST = {n: 0.5 * (m.JOINT_LIMITS[n][0] + m.JOINT_LIMITS[n][1]) for n in m.ARM_JOINTS}
 ACTION = (
     Path(__file__).resolve().parents[2]
-    / "katana_interfaces"
+    / "control_msgs"
     / "action"
     / "FollowJointTrajectory.action"
 )
@@ -63,7 +64,7 @@ def valid_goals(draw, partial: bool = True):
 
 def test_codes_equal_the_interface_constants():
     text = ACTION.read_text()
-    found = dict(re.findall(r"int32 ([A-Z_]+)=(-?\d+)", text))
+    found = dict(re.findall(r"int32 ([A-Z_]+) *= *(-?\d+)", text))
     assert found, "no constants parsed from the .action file"
     for name, value in found.items():
         assert getattr(ac, name) == int(value), name
@@ -74,6 +75,17 @@ def test_codes_equal_the_interface_constants():
 def test_valid_goals_are_accepted(case):
     goal, current = case
     assert ac.validate_trajectory(goal, current, CONTRACT) == ac.OK
+
+
+@settings(max_examples=50, deadline=None)
+@given(valid_goals(), st.lists(st.text(max_size=8), min_size=1, max_size=3))
+def test_goals_with_multi_dof_parts_are_refused(case, multi_dof):
+    """The Katana has no multi-DOF joint: a goal naming one is refused, not half run."""
+    goal, current = case
+    goal = dataclasses.replace(goal, multi_dof_joints=multi_dof)
+    verdict = ac.validate_trajectory(goal, current, CONTRACT)
+    assert verdict.error_code == ac.INVALID_JOINTS
+    assert "multi-DOF" in verdict.error_string
 
 
 @settings(max_examples=100, deadline=None)

@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 
+from control_msgs.action import FollowJointTrajectory, GripperCommand
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.messages import time_msg
 from katana_common.node_runner import run_node
@@ -21,7 +22,6 @@ from katana_common.params import declare_parameters
 from katana_common.qos import JOINT_STATE_QOS, STATE_QOS
 from katana_description import arm_contract as ac
 from katana_description import gripper_contract as gc
-from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.srv import ResetWorld, SetMotors
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup

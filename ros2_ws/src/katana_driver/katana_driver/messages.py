@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import math
 
-from katana_common.messages import duration_msg, to_seconds
+from control_msgs.action import FollowJointTrajectory, GripperCommand
+from katana_common.messages import duration_msg, multi_dof_joints, to_seconds
 from katana_description import arm_contract as ac
 from katana_description import gripper_contract as gc
-from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 from katana_driver.core.encoders import ARM_JOINTS
@@ -36,6 +36,7 @@ def trajectory_goal(msg: FollowJointTrajectory.Goal) -> ac.TrajectoryGoal | ac.V
         path_tolerance=[(t.name, t.position) for t in msg.path_tolerance],
         goal_tolerance=[(t.name, t.position) for t in msg.goal_tolerance],
         goal_time_tolerance_s=to_seconds(msg.goal_time_tolerance),
+        multi_dof_joints=multi_dof_joints(msg),
     )
 
 

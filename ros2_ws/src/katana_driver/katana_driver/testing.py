@@ -18,11 +18,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import rclpy
+from control_msgs.action import FollowJointTrajectory
 from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.messages import duration_msg
 from katana_common.testing import spin_until
-from katana_interfaces.action import FollowJointTrajectory
 from rclpy.action.client import GoalStatus
 from rclpy.context import Context
 from rclpy.node import Node

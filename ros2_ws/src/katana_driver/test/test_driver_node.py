@@ -7,6 +7,8 @@ import math
 import pytest
 import rclpy
 from builtin_interfaces.msg import Duration
+from control_msgs.action import FollowJointTrajectory, GripperCommand
+from control_msgs.msg import JointTolerance
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from katana_common.action_client import ActionClient
@@ -17,8 +19,6 @@ from katana_common.testing import call_service, spin_until
 from katana_driver.core import protocol as p
 from katana_driver.core.encoders import ALL_JOINTS, ARM_JOINTS
 from katana_driver.katana_driver_node import KatanaDriverNode
-from katana_interfaces.action import FollowJointTrajectory, GripperCommand
-from katana_interfaces.msg import JointTolerance
 from katana_interfaces.srv import ResetWorld, SetMotors
 from rcl_interfaces.srv import SetParameters
 from rclpy.action.client import GoalStatus

@@ -106,7 +106,7 @@ def test_signal_mid_trajectory_ends_the_driver_and_the_arm_holds(make_emulator, 
 _SEND_GOAL = """
 import rclpy
 from builtin_interfaces.msg import Duration
-from katana_interfaces.action import FollowJointTrajectory
+from control_msgs.action import FollowJointTrajectory
 from katana_common.action_client import ActionClient
 from trajectory_msgs.msg import JointTrajectoryPoint
 rclpy.init()

@@ -19,6 +19,7 @@ import math
 import sys
 import threading
 
+from control_msgs.action import FollowJointTrajectory, GripperCommand
 from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.futures import Stopped
@@ -26,7 +27,7 @@ from katana_common.node_runner import run_node
 from katana_common.params import Param, declare_parameters
 from katana_common.qos import JOINT_STATE_QOS
 from katana_description import models as m
-from katana_interfaces.action import FollowJointTrajectory, GripperCommand, PickAndPlace
+from katana_interfaces.action import PickAndPlace
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node

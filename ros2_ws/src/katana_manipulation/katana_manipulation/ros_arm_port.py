@@ -7,11 +7,11 @@ from __future__ import annotations
 import time
 
 from action_msgs.msg import GoalStatus
+from control_msgs.action import FollowJointTrajectory, GripperCommand
 from katana_common.action_client import ActionClient
 from katana_common.futures import Stopped, wait_for_future
 from katana_common.messages import duration_msg
 from katana_description import models as m
-from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 from katana_manipulation.core import pick_place as pp

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+from control_msgs.action import FollowJointTrajectory, GripperCommand
 from geometry_msgs.msg import Pose
-from katana_common.messages import time_msg, to_seconds
+from katana_common.messages import multi_dof_joints, time_msg, to_seconds
 from katana_description import models as m
-from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.msg import Block, BlockArray
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
@@ -79,6 +79,7 @@ def trajectory_goal(request) -> TrajectoryGoal:
         path_tolerance=[(t.name, t.position) for t in request.path_tolerance],
         goal_tolerance=[(t.name, t.position) for t in request.goal_tolerance],
         goal_time_tolerance_s=to_seconds(request.goal_time_tolerance),
+        multi_dof_joints=multi_dof_joints(request),
     )
 
 

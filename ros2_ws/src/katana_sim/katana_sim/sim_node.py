@@ -17,11 +17,11 @@ import sys
 import threading
 import time
 
+from control_msgs.action import FollowJointTrajectory, GripperCommand
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.node_runner import run_node
 from katana_common.params import ParameterError, declare_parameters
 from katana_description import arm_contract as ac
-from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.srv import ResetWorld
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup

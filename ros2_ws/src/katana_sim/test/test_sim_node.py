@@ -9,11 +9,12 @@ import pytest
 import rclpy
 from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
+from control_msgs.action import FollowJointTrajectory, GripperCommand
+from control_msgs.msg import JointComponentTolerance
 from katana_common.action_client import ActionClient
 from katana_common.qos import JOINT_STATE_QOS, SENSOR_QOS, STATE_QOS
 from katana_common.testing import wait_until
 from katana_description import models as m
-from katana_interfaces.action import FollowJointTrajectory, GripperCommand
 from katana_interfaces.msg import BlockArray
 from katana_interfaces.srv import ResetWorld
 from katana_sim.sim_node import SimNode
@@ -21,7 +22,7 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image, JointState
-from trajectory_msgs.msg import JointTrajectoryPoint
+from trajectory_msgs.msg import JointTrajectoryPoint, MultiDOFJointTrajectoryPoint
 
 
 @pytest.fixture(scope="module")
@@ -122,6 +123,28 @@ def test_bad_trajectories_are_refused_and_the_node_goes_on(graph, names, points,
     # goal, with the arm still parked at pan -3.0
     ok = _send(graph["arm"], _traj(["katana_motor1_pan_joint"], [[0.1]], [6.0]))
     assert ok.result.error_code == 0, ok.result.error_string
+
+
+def _multi_dof_joint(goal: FollowJointTrajectory.Goal) -> None:
+    goal.multi_dof_trajectory.joint_names = ["base_floating"]
+    goal.multi_dof_trajectory.points = [MultiDOFJointTrajectoryPoint()]
+
+
+def _component_tolerance(goal: FollowJointTrajectory.Goal) -> None:
+    goal.component_goal_tolerance = [JointComponentTolerance(
+        joint_name="base_floating", component=JointComponentTolerance.TRANSLATION, position=0.1)]
+
+
+@pytest.mark.parametrize("add_multi_dof", [_multi_dof_joint, _component_tolerance])
+def test_multi_dof_parts_are_refused_with_invalid_joints(graph, add_multi_dof):
+    """control_msgs' goal has multi-DOF parts; the Katana has no such joint: refused whole,
+    even when its single-DOF trajectory alone would run."""
+    goal = _traj(["katana_motor1_pan_joint"], [[0.1]], [6.0])
+    add_multi_dof(goal)
+    res = _send(graph["arm"], goal)
+    assert res.status == GoalStatus.STATUS_ABORTED
+    assert res.result.error_code == FollowJointTrajectory.Result.INVALID_JOINTS
+    assert "base_floating" in res.result.error_string
 
 
 def test_bad_gripper_goal_is_refused(graph):

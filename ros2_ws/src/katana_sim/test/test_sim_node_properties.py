@@ -9,13 +9,13 @@ import math
 import pytest
 from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
+from control_msgs.action import FollowJointTrajectory, GripperCommand
+from control_msgs.msg import JointTolerance
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from katana_common.action_client import ActionClient
 from katana_common.testing import wait_until
 from katana_description import models as m
-from katana_interfaces.action import FollowJointTrajectory, GripperCommand
-from katana_interfaces.msg import JointTolerance
 from katana_interfaces.srv import ResetWorld
 from trajectory_msgs.msg import JointTrajectoryPoint
 
