@@ -54,11 +54,14 @@ def test_a_lease_is_released_when_the_run_fails() -> None:
         assert domain == pool[0]
 
 
+# The marker is written beside and renamed: the test polls for it, and a file that exists
+# before its text is written was read empty (the test failed about once in a full-suite run).
 CHILD = """
-import signal, sys, time
+import os, signal, sys, time
 from pathlib import Path
 def interrupted(*_):
-    Path(sys.argv[1]).write_text("SIGINT")
+    Path(sys.argv[1] + ".tmp").write_text("SIGINT")
+    os.replace(sys.argv[1] + ".tmp", sys.argv[1])
     sys.exit(0)
 signal.signal(signal.SIGINT, interrupted)
 Path(sys.argv[1] + ".ready").write_text("")
