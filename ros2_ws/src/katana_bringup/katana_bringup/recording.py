@@ -181,19 +181,19 @@ class McapRecording:
             self._file.close()
 
 
-def is_indexed(path: str | Path) -> bool:
-    """Whether the file ends with a footer and a summary (a finished writer's file)."""
-    with open(path, "rb") as fh:
-        try:
-            summary = make_reader(fh).get_summary()
-        except (McapError, EOFError, ValueError, OSError):
-            return False
-    return summary is not None and summary.statistics is not None
-
-
 #: what a record cut short or a damaged chunk raises while scanning
 _SCAN_ERRORS = (McapError, EOFError, CRCValidationError, ValueError, struct.error, zlib.error,
                 KeyError, IndexError)
+
+
+def is_indexed(path: str | Path) -> bool:
+    """Whether the file ends with a footer and a whole summary (a finished writer's file)."""
+    with open(path, "rb") as fh:
+        try:
+            summary = make_reader(fh).get_summary()
+        except (*_SCAN_ERRORS, OSError):
+            return False
+    return summary is not None and summary.statistics is not None
 
 
 def scan_records(path: str | Path) -> Iterator[Header | Schema | Channel | Message]:

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from katana_bringup import bag_qos, play, playback
 from katana_bringup.recording import McapRecording, is_indexed
@@ -22,6 +22,8 @@ from katana_common.cli_testing import (
 )
 
 CHECKS = cli_settings(25)
+#: property tests on a shared machine: no per-example deadline (CI's profile has none)
+UNTIMED = settings(deadline=None)
 
 
 class FakeClock:
@@ -55,6 +57,7 @@ def _messages(gaps_ns: list[int]) -> list[playback.Recorded]:
     return out
 
 
+@UNTIMED
 @given(gaps=st.lists(st.integers(0, 3_000_000_000), min_size=1, max_size=30),
        rate=st.floats(0.05, 20.0), delay=st.floats(0.0, 2.0))
 def test_each_message_at_its_recorded_time_over_rate_with_the_clock(gaps, rate, delay):

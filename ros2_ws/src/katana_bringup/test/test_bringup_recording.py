@@ -29,6 +29,8 @@ TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 String = TYPESTORE.types["std_msgs/msg/String"]
 FILES = settings(suppress_health_check=[HealthCheck.function_scoped_fixture], deadline=None,
                  max_examples=40)
+#: property tests on a shared machine: no per-example deadline (CI's profile has none)
+UNTIMED = settings(deadline=None)
 
 
 def cdr(text: str) -> bytes:
@@ -84,6 +86,7 @@ profiles = st.builds(
     avoid_ros_namespace_conventions=st.booleans())
 
 
+@UNTIMED
 @given(st.lists(profiles, max_size=4))
 def test_qos_text_round_trips_and_rosbags_reads_it(offered):
     text = bag_qos.dump(offered)
@@ -95,6 +98,7 @@ def test_qos_text_round_trips_and_rosbags_reads_it(offered):
             for q in read] == [(p["depth"], p["reliability"], p["durability"]) for p in offered]
 
 
+@UNTIMED
 @given(st.text(max_size=200) | st.recursive(
     st.none() | st.booleans() | st.integers() | st.text(max_size=8),
     lambda inner: st.lists(inner, max_size=3) | st.dictionaries(
