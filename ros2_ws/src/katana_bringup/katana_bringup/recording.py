@@ -123,8 +123,11 @@ class McapRecording:
 
     def add_topic(self, topic: str, full_type: str, definition: str | None = None,
                   offered_qos: list[dict] | None = None) -> None:
-        """A channel for `topic`; `offered_qos` are the publishers' profiles (bag_qos)."""
+        """A channel for `topic` (once: a second call is ignored); `offered_qos` are the
+        publishers' profiles (bag_qos)."""
         with self._lock:
+            if topic in self._channels:
+                return
             if full_type not in self._schemas:
                 text = definition if definition is not None else message_definition(full_type)
                 self._schemas[full_type] = self._writer.register_schema(

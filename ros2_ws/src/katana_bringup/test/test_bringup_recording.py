@@ -5,6 +5,8 @@ anywhere (a killed writer), which keeps every message of every complete chunk.""
 from __future__ import annotations
 
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -234,3 +236,12 @@ def test_scan_stops_at_the_cut_and_keeps_the_channels_metadata(tmp_path):
     channels = [r for r in scan_records(tmp_path / "cut.mcap") if hasattr(r, "topic")]
     assert {c.topic: bag_qos.parse(c.metadata["offered_qos_profiles"])[0]["durability"]
             for c in channels if c.topic == "/a"} == {"/a": "transient_local"}
+
+
+def test_the_format_and_playback_logic_load_without_ros():
+    code = ("import sys, katana_bringup.bag_qos, katana_bringup.recording, "
+            "katana_bringup.playback; print(sorted(m for m in sys.modules "
+            "if m == 'rclpy' or m.endswith('.msg')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, check=True).stdout
+    assert out.strip() == "[]"
