@@ -24,6 +24,7 @@ setup(
         "console_scripts": [
             "katana-run = katana_bringup.run:main",
             "katana-demo = katana_bringup.demo:main",
+            "katana-play = katana_bringup.play:main",
             "run_recorder = katana_bringup.recorder_node:main",
         ],
     },

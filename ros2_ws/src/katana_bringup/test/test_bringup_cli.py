@@ -275,6 +275,8 @@ def test_katana_run_checks_only_the_started_nodes_cross_rules(workdir, capsys):
     (["katana-robot", "claims"], "the following arguments are required: RUN_DIR"),
     (["katana-robot", "paper", "--strategies", "bogus"], "argument --strategies"),
     (["katana-curiosity", "claims", "--resamples", "0"], "argument --resamples"),
+    (["katana-play", "run.mcap"], "argument FILE.mcap: run.mcap does not exist"),
+    (["katana-play", "p.yaml", "--rate", "0"], "argument --rate: must be > 0"),
 ])
 def test_the_console_scripts_refuse_with_exit_2_and_no_traceback(tmp_path, argv, named):
     assert shutil.which(argv[0]), f"{argv[0]} is not installed (make setup, source scripts/env.sh)"

@@ -1,7 +1,7 @@
-"""katana-run --record: the recorder writes a rosbag2 MCAP file that the mcap library reads back
-(topics, types, counts, and every message decoded with the file's own schemas by
-mcap-ros2-support, as Foxglove and rosbag2 decode it); a SIGKILL leaves what was written
-readable."""
+"""katana-run --record: the recorder writes a rosbag2 MCAP file that the independent rosbags
+reader opens (topics, types, counts, each channel's offered QoS, and every message decoded with
+the file's own schemas), as does mcap-ros2-support; a SIGKILL leaves every message up to the
+last flush, which `repair` (katana-play --repair) makes an indexed file rosbags reads."""
 
 from __future__ import annotations
 
@@ -15,16 +15,17 @@ import pytest
 import rclpy
 from katana_bringup.in_process import InProcessGraph
 from katana_bringup.recorder_node import TOPICS, RecorderNode
-from katana_bringup.recording import message_definition, read_recording
+from katana_bringup.recording import is_indexed, message_definition, read_recording, repair
 from katana_common.qos import EVENT_QOS, SENSOR_QOS, STATE_QOS
 from katana_common.testing import private_ros_env
 from katana_interfaces.msg import Block, BlockArray, Experience, LearnerState
-from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import Image, JointState
 
 
@@ -33,6 +34,16 @@ def _read(path: Path) -> dict[str, list]:
     out: dict[str, list] = {}
     for topic, type_name, _log_ns, decoded in read_recording(path):
         out.setdefault(topic, []).append((type_name, decoded))
+    return out
+
+
+def _read_with_rosbags(path: Path) -> dict[str, list]:
+    """topic -> [(type name, message)], read and decoded by rosbags from the file alone."""
+    out: dict[str, list] = {}
+    with AnyReader([path]) as reader:
+        for conn, _t, raw in reader.messages():
+            out.setdefault(conn.topic, []).append(
+                (conn.msgtype, reader.deserialize(raw, conn.msgtype)))
     return out
 
 
@@ -65,15 +76,33 @@ def test_a_short_recording_reads_back_with_topics_types_and_counts(tmp_path):
             joints.publish(JointState(name=["a"], position=[float(i)]))
             images.publish(Image(width=1, height=1, encoding="rgb8", step=3, data=b"abc"))
         state.publish(LearnerState())
-        g.wait_for(lambda: rec.recording.counts["/curiosity/experience"] == 5
-                   and rec.recording.counts["/memory/blocks"] == 5
-                   and rec.recording.counts["/joint_states"] == 5
-                   and rec.recording.counts["/curiosity/learner_state"] == 1)
-        assert rec.recording.counts["/camera/image_raw"] == 0  # image_rate_hz 0: none
+        counts = rec.recording.counts
+        g.wait_for(lambda: counts.get("/curiosity/experience") == 5
+                   and counts.get("/memory/blocks") == 5 and counts.get("/joint_states") == 5
+                   and counts.get("/curiosity/learner_state") == 1)
+        assert "/camera/image_raw" not in counts  # image_rate_hz 0: none, not even a channel
         rec.set_parameters([Parameter("image_rate_hz", value=100.0)])  # live
         images.publish(Image(width=1, height=1, encoding="rgb8", step=3, data=b"xyz"))
-        g.wait_for(lambda: rec.recording.counts["/camera/image_raw"] == 1)
+        g.wait_for(lambda: counts.get("/camera/image_raw") == 1)
         rec.stop()
+    with Reader(path) as bag:  # rosbags' rosbag2 reader: the file alone, through its index
+        conns = {c.topic: c for c in bag.connections}
+    assert {t: c.msgcount for t, c in conns.items()} == {
+        "/memory/blocks": 5, "/curiosity/experience": 5, "/joint_states": 5,
+        "/curiosity/learner_state": 1, "/camera/image_raw": 1}
+    durability = {t: [q.durability.name for q in c.ext.offered_qos_profiles]
+                  for t, c in conns.items()}
+    assert durability["/memory/blocks"] == ["TRANSIENT_LOCAL"]  # as its publisher offered
+    assert durability["/curiosity/learner_state"] == ["TRANSIENT_LOCAL"]
+    assert durability["/curiosity/experience"] == ["VOLATILE"]
+    assert [q.reliability.name for q in conns["/camera/image_raw"].ext.offered_qos_profiles
+            ] == ["BEST_EFFORT"]
+    by_rosbags = _read_with_rosbags(path)
+    assert [m.blocks[0].level for _, m in by_rosbags["/memory/blocks"]] == [1, 2, 3, 4, 5]
+    assert [m.label for _, m in by_rosbags["/curiosity/experience"]] == [-1, 1, -1, 1, -1]
+    assert [list(m.position) for _, m in by_rosbags["/joint_states"]] == [
+        [float(i)] for i in range(5)]
+    assert bytes(by_rosbags["/camera/image_raw"][0][1].data) == b"xyz"
     got = _read(path)
     assert {t: len(v) for t, v in got.items()} == {
         "/memory/blocks": 5, "/curiosity/experience": 5, "/joint_states": 5,
@@ -85,9 +114,10 @@ def test_a_short_recording_reads_back_with_topics_types_and_counts(tmp_path):
     assert [m.blocks[0].level for _, m in got["/memory/blocks"]] == [1, 2, 3, 4, 5]
     assert [m.label for _, m in got["/curiosity/experience"]] == [-1, 1, -1, 1, -1]
     assert bytes(got["/camera/image_raw"][0][1].data) == b"xyz"
-    with open(path, "rb") as fh:  # a summary was written: the file is indexed
+    with open(path, "rb") as fh:  # chunked, compressed, indexed
         summary = make_reader(fh).get_summary()
     assert summary is not None and summary.statistics.message_count == 17
+    assert summary.chunk_indexes and {c.compression for c in summary.chunk_indexes} == {"zstd"}
 
 
 def _env() -> dict:
@@ -95,12 +125,13 @@ def _env() -> dict:
 
 
 @pytest.mark.timeout(120)
-def test_sigkill_leaves_a_readable_file(tmp_path, monkeypatch):
+def test_sigkill_then_repair_keeps_every_flushed_message_for_rosbags(tmp_path, monkeypatch):
     path = tmp_path / "killed.mcap"
     env = _env()
     proc = subprocess.Popen(
         [sys.executable, "-m", "katana_bringup.recorder_node", "--ros-args",
-         "-p", f"path:={path}"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+         "-p", f"path:={path}", "-p", "flush_period_s:=0.1"], env=env,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
         monkeypatch.setenv(key, env[key])
     ctx = Context()
@@ -117,7 +148,7 @@ def test_sigkill_leaves_a_readable_file(tmp_path, monkeypatch):
             ex.spin_once(timeout_sec=0.05)
         for i in range(20):
             exp.publish(Experience(index=i, label=1))
-        while True:  # bounded: until the 20 are on disk, read as a crash would leave them
+        while True:  # bounded: until a flush put the 20 on disk, read as a kill leaves them
             ex.spin_once(timeout_sec=0.05)
             try:
                 n = len(_read(path).get("/curiosity/experience", []))
@@ -134,9 +165,11 @@ def test_sigkill_leaves_a_readable_file(tmp_path, monkeypatch):
         ex.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
-    with open(path, "rb") as fh:  # no footer: the writer never finished, seeking fails
-        with pytest.raises(McapError):
-            make_reader(fh).get_summary()
-    got = _read(path)
+    assert not is_indexed(path)  # no footer: the writer never finished
+    with pytest.raises(Exception, match="magic"):
+        Reader(path).open()  # what rosbags says of a killed writer's file
+    report = repair(path)
+    assert report.repaired and report.topics == {"/curiosity/experience": 20}
+    got = _read_with_rosbags(path)
     assert [m.index for _, m in got["/curiosity/experience"]] == list(range(20))
     assert {t for t, _ in got["/curiosity/experience"]} == {"katana_interfaces/msg/Experience"}

@@ -131,6 +131,18 @@ def test_the_loop_and_the_arm_against_their_floors() -> None:
            in text
 
 
+def test_recording_against_the_loop_without_it() -> None:
+    record = {"s_per_experiment_without_recording": 0.8, "s_per_experiment_with_recording": 0.82,
+              "overhead_fraction": 0.025, "record_s_per_experiment": 0.016,
+              "runs": 4, "experiments_per_run": 16, "recorded_messages_per_run": [570, 580],
+              "recorded_mib_per_run": [0.22, 0.23], "targets": {"overhead_fraction": 0.05}}
+    text = dr.bench_record(record)
+    assert "| 0.820 | the same loop without recording: 0.800 | 1.025x | overhead 0.025; " \
+           "under 0.05 (met) |" in text
+    assert "| 0.0160 | the experiment with recording: 0.820 | 0.0195x | - |" in text
+    assert "held 570, 580 messages in 0.22, 0.23 MiB" in text
+
+
 def test_the_driver_and_the_sim_against_their_floors_and_targets() -> None:
     driver = {"request_ms": 0.2, "request_p95_ms": 0.4, "serial_request_ms": 0.5,
               "emulator_handle_ms": 0.05, "poll_rate_hz": 25.0, "state_hz": 24.0,

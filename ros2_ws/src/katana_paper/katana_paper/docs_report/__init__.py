@@ -35,6 +35,7 @@ from .benchmarks import (
     bench_driver,
     bench_loop,
     bench_perception,
+    bench_record,
     bench_sim,
     render_benchmarks,
 )
@@ -123,7 +124,8 @@ __all__ = [
     "made_by", "not_measured", "paper_command", "robot_paper_command", "skill_command",
     "truth_command",
     "BENCHMARKS_INTRO", "BENCH_ABOUT", "BENCH_RENDER", "SPEED_HEADER", "bench_arm",
-    "bench_core", "bench_driver", "bench_loop", "bench_perception", "bench_sim",
+    "bench_core", "bench_driver", "bench_loop", "bench_perception", "bench_record",
+    "bench_sim",
     "render_benchmarks",
     "PAPER_ORDER", "RunSection", "claims_counts", "claims_mismatch", "claims_section", "ranking",
     "uncertain_pairs",

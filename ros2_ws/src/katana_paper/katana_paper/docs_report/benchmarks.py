@@ -74,7 +74,8 @@ def bench_perception(data: Json) -> str:
         ("one placement judgement, ms", num(get(data, "judge_ms")), NONE_MEASURED, "-", "-"),
         ("the reach table fovea_node computes at start-up, ms",
          num(get(data, "reach_table_ms"), 1), NONE_MEASURED, "-", "-"),
-        ("one camera frame written into an MCAP recording, ms",
+        ("one camera frame written into an MCAP recording, its chunk zstd-compressed and "
+         "flushed, ms",
          num(get(data, "record_frame_ms")), NONE_MEASURED, "-", "-"),
     ]
     return (table(SPEED_HEADER, rows) + "\n\nFrames from the "
@@ -178,6 +179,32 @@ def bench_loop(data: Json) -> str:
     return "\n".join(out)
 
 
+def bench_record(data: Json) -> str:
+    """The loop with a recorder beside the same loop without one, and the recorder's own time."""
+    without = get(data, "s_per_experiment_without_recording")
+    with_rec = get(data, "s_per_experiment_with_recording")
+    target = get(data, "targets", "overhead_fraction")
+    overhead = get(data, "overhead_fraction")
+    own = get(data, "record_s_per_experiment")
+    rows = [
+        ("seconds per experiment with `--record` (median)", num(with_rec, 3),
+         f"the same loop without recording: {num(without, 3)}", ratio(with_rec, without, 3),
+         f"overhead {num(overhead, 3)}; under {num(target, 2)}"
+         + ((" (met)" if overhead < target else " (not met)")
+            if finite(overhead) and finite(target) else "")),
+        ("time inside the recorder's writes and flushes, s per experiment", num(own, 4),
+         f"the experiment with recording: {num(with_rec, 3)}", ratio(own, with_rec, 4),
+         "-"),
+    ]
+    files = get(data, "recorded_messages_per_run", default=[]) or []
+    mib = get(data, "recorded_mib_per_run", default=[]) or []
+    return "\n".join([table(SPEED_HEADER, rows), "", (
+        f"{num(get(data, 'runs'))} runs of {num(get(data, 'experiments_per_run'))} experiments, "
+        f"alternately without and with recording; each recording held "
+        f"{', '.join(num(n) for n in files) or NOT_RECORDED} messages in "
+        f"{', '.join(num(m, 2) for m in mib) or NOT_RECORDED} MiB.")])
+
+
 def bench_driver(data: Json) -> str:
     """The driver's reads and state rates beside the emulator's own share, shutdowns and faults."""
     handle = get(data, "emulator_handle_ms")
@@ -215,7 +242,8 @@ def bench_driver(data: Json) -> str:
 
 
 BENCH_RENDER = {"core": bench_core, "perception": bench_perception, "sim": bench_sim,
-                "arm": bench_arm, "loop": bench_loop, "driver": bench_driver}
+                "arm": bench_arm, "loop": bench_loop, "record": bench_record,
+                "driver": bench_driver}
 
 
 def render_benchmarks(results: Mapping) -> str:
@@ -239,7 +267,8 @@ BENCHMARKS_INTRO = """\
 # Benchmarks
 
 What each benchmark measures, and the figures it gave. `make bench` runs every bench;
-`python bench/run.py NAME ...` runs some of them (core, perception, sim, arm, loop, driver).
+`python bench/run.py NAME ...` runs some of them (core, perception, sim, arm, loop, record,
+driver).
 Each writes `bench/results/NAME.json`, which records the machine it ran on (`machine.cpu_model`,
 `machine.cpus`). The figures below come from the committed copies of those files in
 `docs/results/bench/` (`python -m katana_paper.docs_report collect NAME` copies one there and
@@ -265,7 +294,8 @@ CPU time spread over the machine's CPUs), and the one-time compilation after a c
 `bench/bench_perception.py`. Milliseconds, medians over repetitions: the segmentation of one
 camera frame beside its floor (the one colour conversion every segmentation starts with),
 `fovea/observe` of a 4-block setting, one placement judgement, the reach table `fovea_node`
-computes at start-up, and writing one camera frame into an MCAP recording."""),
+computes at start-up, and writing one camera frame into an MCAP recording (its chunk closed:
+zstd-compressed, indexed and handed to the OS)."""),
     "sim": ("the PyBullet simulation", """\
 `bench/bench_sim.py`. One 640x480 render, physics speed with the arm moving, and whole
 pick-and-places through the `pick_and_place` action (`sim_node` and `pick_place_executor` in
@@ -287,6 +317,14 @@ the same experiments: the time spent inside the work the loop runs on (physics s
 renders, segmentation, the judge and the fovea), summed per experiment; the ratio is the
 loop's overhead (waits, ROS transport). Renders beyond the two images an experiment needs are
 counted apart: they are work nobody uses."""),
+    "record": ("what recording costs the loop", """\
+`bench/bench_record.py`. `katana-demo` with seed 0 in the bench's own process, as the loop
+bench runs it, four times alternately without and with `--record FILE.mcap` (the default
+recorder: images at 2 Hz of the node's clock, the open chunk flushed every second). Seconds per
+experiment is the median gap between logged experiments over the runs of each kind; the floor
+is the loop without recording, and the ratio less one is the recording's overhead. Also the
+time spent inside the recorder's writes and flushes per experiment, which the noise between
+runs does not touch."""),
     "driver": ("the Katana driver against its emulator", """\
 `bench/bench_driver.py`. Against `katana-emulator` on loopback, not the real arm (a request
 takes about 40 ms on the arm): the round trip of one position read over TCP and over a
