@@ -11,7 +11,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
-        ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/config",
+         glob("config/*.yaml") + glob("config/*.json") + glob("config/*.rviz")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
     ],
     install_requires=["setuptools"],
@@ -26,6 +27,7 @@ setup(
             "katana-demo = katana_bringup.demo:main",
             "katana-play = katana_bringup.play:main",
             "run_recorder = katana_bringup.recorder_node:main",
+            "foxglove_bridge = katana_bringup.foxglove_bridge:main",
         ],
     },
 )

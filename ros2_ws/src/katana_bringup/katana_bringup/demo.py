@@ -43,12 +43,14 @@ from rclpy.signals import SignalHandlerOptions
 
 from .frames import ExperienceFrames, Frames, draw_placement
 from .graph_params import LAYERS
+from .live_view import foxglove_address
 from .run import (
     EXECUTOR_THREADS,
     KATANA_RUN_SHUTDOWN_LIMIT_S,
     add_graph_arguments,
     build_nodes,
     graph_params_check,
+    print_foxglove_url,
     split_ros_args,
 )
 from .run_report import SessionClock, close_killed_session, read_sessions, write_report
@@ -126,7 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "curiosity node's, q1)")
     parser.add_argument("--seed", type=from_spec(_CURIOSITY["seed"]), default=0,
                         help="seed of the sim and the learner")
-    add_graph_arguments(parser)  # --backend, --params (overlays), --record
+    add_graph_arguments(parser)  # --backend, --params (overlays), --record, --foxglove
     parser.add_argument("--real-time-factor", type=from_spec(_SIM["real_time_factor"]),
                         default=0.0,
                         help="sim pace: 0 as fast as possible (default), 1 wall-clock")
@@ -153,9 +155,9 @@ def demo_options(args, params: ParamSet) -> None:
         params.set(curiosity, "strategy", args.strategy, "--strategy")
     if args.quarantine_bad_lines:
         params.set(curiosity, "quarantine_bad_lines", True, "--quarantine-bad-lines")
-    if not args.params:
+    if not args.params and foxglove_address(args) is None:
         # Headless: nobody looks at the debug image (its drawing would take the shared
-        # process's CPU from the physics).
+        # process's CPU from the physics). With --foxglove it is drawn while a panel shows it.
         params.set("perception_node", "publish_debug_image", False, "--params")
     if args.backend == "sim":
         params.set("sim_node", "seed", args.seed, "--seed")
@@ -225,7 +227,8 @@ def _run(args, ros_args: list[str], params: dict, out: Path, new_folder: bool,
     # katana-demo handles SIGINT/SIGTERM itself (spin_nodes): the nodes stop before the context
     rclpy.init(args=["katana-demo", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
     try:
-        nodes = build_nodes(args.backend, params, record=args.record)
+        nodes = build_nodes(args.backend, params, record=args.record,
+                            foxglove=foxglove_address(args))
     except Exception as exc:  # what only a node finds (a run folder it cannot resume)
         rclpy.try_shutdown()
         terminal.close()  # the refusal on standard error, not in nodes.log
@@ -259,6 +262,7 @@ def _run(args, ros_args: list[str], params: dict, out: Path, new_folder: bool,
     print(f"katana-demo: backend {args.backend}, {args.experiments} experiments "
           f"(strategy {learner.strategy_name}), run folder {out}"
           + (f"; the nodes' log: {terminal.log_path}" if terminal.log_path else ""), flush=True)
+    print_foxglove_url(nodes, "katana-demo")
     terminal.start(args.experiments, learner.experiments)
     start = time.monotonic()
     spin_nodes([*nodes, recorder_node], "katana-demo",

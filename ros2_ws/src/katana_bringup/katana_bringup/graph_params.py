@@ -42,6 +42,8 @@ from katana_sim.sim_params import PARAMS as SIM_PARAMS
 from katana_sim.sim_params import cross_check as sim_rule
 from katana_sim.sim_params import sim_config
 
+from .foxglove_bridge import NAME as FOXGLOVE_BRIDGE
+from .foxglove_bridge import PARAMS as FOXGLOVE_PARAMS
 from .recorder_node import PARAMS as RECORDER_PARAMS
 
 BACKENDS = ("sim", "hardware")
@@ -51,9 +53,10 @@ NODE_NAMES = {
     "sim": ("sim_node",),
     "hardware": ("katana_driver_node", "camera_node"),
 }
-#: the nodes above the arm, whatever the backend, and the recorder
+#: the nodes above the arm, whatever the backend, the recorder and the Foxglove bridge (its
+#: section is checked; --foxglove gives it the host and port)
 GRAPH_NODES = ("pick_place_executor", "perception_node", "block_memory_node", "fovea_node",
-               "curiosity_node", "run_recorder")
+               "curiosity_node", "run_recorder", FOXGLOVE_BRIDGE)
 _LAYER_NODES = {"arm": ("pick_place_executor",),
                 "perception": ("perception_node", "block_memory_node", "fovea_node"),
                 "curiosity": ("curiosity_node",)}
@@ -81,6 +84,7 @@ NODE_RULES: dict[str, tuple[Sequence[Param], Rule | None]] = {
     "fovea_node": (FOVEA_PARAMS, fovea_rule),
     "curiosity_node": (CURIOSITY_PARAMS, curiosity_rule),
     RECORDER: (RECORDER_PARAMS, None),
+    FOXGLOVE_BRIDGE: (FOXGLOVE_PARAMS, None),
 }
 
 

@@ -1,7 +1,7 @@
 """katana-run: the whole node graph in one process (for machines without ros2 launch).
 
     katana-run [--backend sim|hardware] [--params FILE ...] [--duration S] [--record F.mcap]
-               [--ros-args ...]
+               [--foxglove [PORT]] [--foxglove-host HOST] [--ros-args ...]
 
 Loads standard ROS parameter YAML files (`node_name: {ros__parameters: {...}}`, with `/**` for
 every node): the packaged ones (config/graph.yaml, then the backend's: backend_sim.yaml and
@@ -12,7 +12,8 @@ by the rules the nodes apply (graph_params): a section of no node, an undeclared
 of the wrong type or outside its spec is refused naming the file, the line and the key.
 launch/sim.launch.py starts the same nodes, with the same YAML, as separate processes for
 users with a full ROS 2 install. `--record F.mcap` adds a recorder of the run's topics (rosbag2
-MCAP; katana_bringup.recorder_node).
+MCAP; katana_bringup.recorder_node). `--foxglove [PORT]` adds a live view for the Foxglove app
+(a WebSocket server on 127.0.0.1:8765 by default; katana_bringup.foxglove_bridge).
 
 The graph has three layers: "arm" (the backend's arm and camera nodes, and the pick-and-place
 executor), "perception" (perception, block memory and fovea nodes) and "curiosity" (the
@@ -32,10 +33,12 @@ from ament_index_python.packages import get_package_share_directory
 from katana_common.cli_args import (
     CommandLineError,
     comma_list,
+    listen_host,
     new_file,
     parse_command_line,
     positive_seconds,
     readable_file,
+    tcp_port,
 )
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.node_runner import EXIT_INVALID_CONFIGURATION, spin_nodes
@@ -49,6 +52,8 @@ from katana_perception.perception_node import PerceptionNode
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
+from .foxglove_bridge import NAME as FOXGLOVE_BRIDGE
+from .foxglove_bridge import FoxgloveBridgeNode
 from .graph_params import (
     BACKENDS,
     LAYERS,
@@ -57,6 +62,7 @@ from .graph_params import (
     hardware_base,
     refusal,
 )
+from .live_view import add_foxglove_arguments, foxglove_address
 from .recorder_node import RecorderNode
 
 PACKAGE = "katana_bringup"
@@ -146,9 +152,11 @@ def build_nodes(
     context=None,
     layers: tuple[str, ...] | list[str] = LAYERS,
     record: str | Path | None = None,
+    foxglove: tuple[str, int] | None = None,
 ) -> list:
     """Every node of the chosen layers of the graph for a backend, constructed in `context`,
-    plus the run recorder when `record` names an MCAP file.
+    plus the run recorder when `record` names an MCAP file and the Foxglove bridge when
+    `foxglove` gives its (host, port).
 
     Nodes whose construction fails (an invalid parameter) raise; nodes built before are
     destroyed first so nothing is left half running."""
@@ -174,6 +182,12 @@ def build_nodes(
                                               "path": str(record)}}
             nodes.append(RecorderNode(context=context,
                                       parameter_overrides=overrides_for("run_recorder", own)))
+        if foxglove is not None:
+            host, port = foxglove
+            own = {**params, FOXGLOVE_BRIDGE: {**params.get(FOXGLOVE_BRIDGE, {}),
+                                               "host": host, "port": port}}
+            nodes.append(FoxgloveBridgeNode(
+                context=context, parameter_overrides=overrides_for(FOXGLOVE_BRIDGE, own)))
     except BaseException:
         for node in nodes:
             node.destroy_node()
@@ -199,6 +213,7 @@ def add_graph_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--record", type=new_file(".mcap"), default=None, metavar="FILE.mcap",
                         help="record the run's topics into a rosbag2 MCAP file (in an existing "
                         "folder)")
+    add_foxglove_arguments(parser, tcp_port, listen_host)
 
 
 def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
@@ -255,6 +270,13 @@ def load_graph_params(parser: argparse.ArgumentParser, backend: str,
     return [*default_params_files(backend), *overlays], params.values()
 
 
+def print_foxglove_url(nodes: list, prog: str) -> None:
+    """Say where the Foxglove app connects, if the graph has the bridge."""
+    for node in nodes:
+        if isinstance(node, FoxgloveBridgeNode):
+            print(f"{prog}: Foxglove live view: connect the app to {node.url}", flush=True)
+
+
 def _one_line(exc: BaseException) -> str:
     text = str(exc).strip() or type(exc).__name__
     return " ".join(text.split())
@@ -279,7 +301,8 @@ def main(argv: list[str] | None = None) -> int:
     # katana-run handles SIGINT/SIGTERM itself (spin_nodes): the nodes stop before the context
     rclpy.init(args=["katana-run", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
     try:
-        nodes = build_nodes(args.backend, params, layers=args.layers, record=args.record)
+        nodes = build_nodes(args.backend, params, layers=args.layers, record=args.record,
+                            foxglove=foxglove_address(args))
     except (ParameterError, ValueError) as exc:
         print(f"katana-run: {_one_line(exc)}", file=sys.stderr)
         rclpy.try_shutdown()
@@ -291,6 +314,7 @@ def main(argv: list[str] | None = None) -> int:
     names = ", ".join(n.get_name() for n in nodes)
     print(f"katana-run: backend {args.backend}: {names} (parameters: "
           f"{', '.join(str(f) for f in files)})", flush=True)
+    print_foxglove_url(nodes, "katana-run")
     return spin_nodes(nodes, "katana-run", args.duration,
                       executor=MultiThreadedExecutor(num_threads=EXECUTOR_THREADS),
                       limit_s=KATANA_RUN_SHUTDOWN_LIMIT_S)
