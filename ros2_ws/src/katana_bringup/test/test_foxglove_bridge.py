@@ -7,13 +7,10 @@ katana-demo refuse a bad --foxglove before any work."""
 from __future__ import annotations
 
 import math
-import re
-import select
 import signal
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -23,7 +20,7 @@ from katana_bringup.foxglove_bridge import FoxgloveBridgeNode
 from katana_bringup.in_process import InProcessGraph
 from katana_common.params import ParameterError
 from katana_common.qos import SENSOR_QOS, STATE_QOS
-from katana_common.testing import private_ros_env, stop_process
+from katana_common.testing import private_ros_env, stop_process, wait_for_output
 from katana_interfaces.msg import HeightModel, LearnerState
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
@@ -185,13 +182,9 @@ def test_katana_run_serves_its_graph_to_a_client():
          "--duration", "120"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env=private_ros_env())
     try:
-        url, deadline = None, time.monotonic() + 90
-        while url is None and time.monotonic() < deadline and proc.poll() is None:
-            if select.select([proc.stdout], [], [], 0.5)[0]:
-                found = re.search(r"connect the app to ws://127\.0\.0\.1:(\d+)",
-                                  proc.stdout.readline())
-                url = found and int(found.group(1))
-        assert url, "katana-run never said where the Foxglove server listens"
+        found = wait_for_output(proc.stdout, r"connect the app to ws://127\.0\.0\.1:(\d+)", 90)
+        assert found, "katana-run never said where the Foxglove server listens"
+        url = int(found.group(1))
         with FoxgloveClient(url) as client:
             channels = client.wait_for_channels({"/diagnostics", "/fovea/markers",
                                                  "/memory/blocks", "/perception/detections"})
@@ -216,13 +209,9 @@ def test_the_console_script_serves_until_a_signal(sig):
         [sys.executable, "-m", "katana_bringup.foxglove_bridge", "--ros-args", "-p", "port:=0"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=private_ros_env())
     try:
-        port, deadline = None, time.monotonic() + 60
-        while port is None and time.monotonic() < deadline and proc.poll() is None:
-            if select.select([proc.stderr], [], [], 0.5)[0]:
-                found = re.search(r"Foxglove live view on ws://127\.0\.0\.1:(\d+)",
-                                  proc.stderr.readline())
-                port = found and int(found.group(1))
-        assert port, "foxglove_bridge never logged its address"
+        found = wait_for_output(proc.stderr, r"Foxglove live view on ws://127\.0\.0\.1:(\d+)", 60)
+        assert found, "foxglove_bridge never logged its address"
+        port = int(found.group(1))
         with FoxgloveClient(port) as client:
             assert client.next_event()["op"] == "serverInfo"
     finally:

@@ -6,6 +6,8 @@ time how long it takes to exit)."""
 from __future__ import annotations
 
 import os
+import re
+import select
 import subprocess
 import time
 from collections.abc import Callable, Iterator
@@ -55,6 +57,26 @@ def _until(condition: Callable[[], T], timeout_s: float, pause: Callable[[float]
         if value or remaining <= 0.0:
             return value
         pause(min(step_s, remaining))
+
+
+def wait_for_output(stream, pattern: str, timeout_s: float) -> re.Match | None:
+    """The first match of `pattern` in what a child process writes to `stream` (its pipe),
+    within `timeout_s`; None at the end of the stream or the time. Reads the pipe's descriptor
+    itself: select() on the buffered file object misses lines that arrived in one chunk with an
+    earlier one (readline took them into its buffer, and the descriptor has nothing more)."""
+    fd, seen = stream.fileno(), b""
+    deadline = time.monotonic() + timeout_s
+    while (remaining := deadline - time.monotonic()) > 0:
+        if not select.select([fd], [], [], min(remaining, 0.5))[0]:
+            continue
+        chunk = os.read(fd, 65536)
+        if not chunk:
+            return None
+        seen += chunk
+        found = re.search(pattern, seen.decode("utf-8", errors="replace"))
+        if found:
+            return found
+    return None
 
 
 def stop_process(proc: subprocess.Popen, sig: int, timeout_s: float = 30.0,

@@ -10,7 +10,14 @@ import threading
 import time
 
 import pytest
-from katana_common.testing import call_service, probe_node, spin_until, stop_process, wait_until
+from katana_common.testing import (
+    call_service,
+    probe_node,
+    spin_until,
+    stop_process,
+    wait_for_output,
+    wait_until,
+)
 from rcl_interfaces.msg import ParameterValue
 from rcl_interfaces.srv import GetParameters
 
@@ -121,3 +128,20 @@ def test_stop_process_kills_a_process_that_ignores_the_signal():
     assert proc.returncode == -signal.SIGKILL
     assert 0.3 <= seconds < 5.0
     assert (out, err) == ("", "")
+
+
+def test_wait_for_output_finds_a_line_that_came_in_one_chunk_with_another() -> None:
+    """Two lines written at once: the second is found (select() on the buffered file object
+    would have waited for more after readline took both)."""
+    proc = subprocess.Popen([sys.executable, "-c",
+                             "import sys, time; sys.stdout.write('first\\nport 4242\\n'); "
+                             "sys.stdout.flush(); time.sleep(30)"],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        found = wait_for_output(proc.stdout, r"port (\d+)", 20.0)
+        assert found and found.group(1) == "4242"
+        assert wait_for_output(proc.stdout, r"never", 0.3) is None
+    finally:
+        proc.kill()
+        proc.wait()
+        proc.stdout.close()
