@@ -7,9 +7,10 @@ import signal
 import subprocess
 import sys
 import threading
-import time
+from types import SimpleNamespace
 
 import pytest
+from katana_common import testing
 from katana_common.testing import (
     call_service,
     probe_node,
@@ -22,15 +23,28 @@ from rcl_interfaces.msg import ParameterValue
 from rcl_interfaces.srv import GetParameters
 
 
-class FakeExecutor:
-    """Records the slices it was asked to spin (and sleeps them, as an idle executor would)."""
+class FakeClock:
+    """Time that passes only when an executor spins (no timing of the machine in the test)."""
 
     def __init__(self) -> None:
+        self.now = 100.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+
+class FakeExecutor:
+    """Records the slices it was asked to spin, and lets them pass on `clock` as an idle
+    executor would."""
+
+    def __init__(self, clock: FakeClock | None = None) -> None:
         self.slices: list[float] = []
+        self.clock = clock
 
     def spin_once(self, timeout_sec: float | None = None) -> None:
         self.slices.append(timeout_sec)
-        time.sleep(timeout_sec)
+        if self.clock is not None:
+            self.clock.now += timeout_sec
 
 
 def test_spin_until_returns_at_once_without_spinning_when_the_condition_holds():
@@ -46,14 +60,13 @@ def test_spin_until_spins_until_the_condition_holds_and_returns_its_value():
 
 
 @pytest.mark.parametrize("falsy", [False, None, 0, []])
-def test_spin_until_gives_up_at_the_deadline_with_the_last_value(falsy):
-    executor = FakeExecutor()
-    start = time.monotonic()
+def test_spin_until_gives_up_at_the_deadline_with_the_last_value(falsy, monkeypatch):
+    clock = FakeClock()
+    monkeypatch.setattr(testing, "time", SimpleNamespace(monotonic=clock.monotonic))
+    executor = FakeExecutor(clock)
     assert spin_until(executor, lambda: falsy, timeout_s=0.12, slice_s=0.05) == falsy
-    waited = time.monotonic() - start
-    assert 0.12 <= waited < 0.5
-    assert all(0.0 < s <= 0.05 for s in executor.slices)
-    assert sum(executor.slices) == pytest.approx(0.12, abs=0.03)  # the last slice is cut short
+    assert executor.slices == pytest.approx([0.05, 0.05, 0.02])  # the last slice cut short
+    assert clock.now == pytest.approx(100.12)
 
 
 def test_spin_until_runs_the_callbacks_of_a_real_executor():
@@ -81,18 +94,22 @@ def test_call_service_waits_for_the_service_and_its_answer():
 def test_wait_until_sees_what_another_thread_does():
     flag = threading.Event()
     threading.Timer(0.05, flag.set).start()
-    start = time.monotonic()
-    assert wait_until(flag.is_set, timeout_s=5.0) is True
-    assert time.monotonic() - start < 2.0
+    assert wait_until(flag.is_set, timeout_s=5.0) is True  # False after 5 s if never seen
 
 
-def test_wait_until_returns_the_value_or_gives_up_at_the_deadline():
+def test_wait_until_returns_the_value_or_gives_up_at_the_deadline(monkeypatch):
     assert wait_until(lambda: 7) == 7
-    calls: list[int] = []
-    start = time.monotonic()
-    assert wait_until(lambda: calls.append(1), timeout_s=0.1, poll_s=0.02) is None
-    assert 0.1 <= time.monotonic() - start < 0.5
-    assert 3 <= len(calls) <= 7  # about every poll_s, and once more at the deadline
+    clock = FakeClock()
+
+    def sleep(seconds: float) -> None:
+        clock.now += seconds
+
+    monkeypatch.setattr(testing, "time", SimpleNamespace(monotonic=clock.monotonic, sleep=sleep))
+    calls: list[float] = []
+    # binary fractions: the fake time adds up exactly
+    assert testing.wait_until(lambda: calls.append(clock.now), timeout_s=0.5,
+                              poll_s=0.125) is None
+    assert calls == [100.0, 100.125, 100.25, 100.375, 100.5]  # every poll_s, to the deadline
 
 
 def _python(body: str) -> subprocess.Popen:
