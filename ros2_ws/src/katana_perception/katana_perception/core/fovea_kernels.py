@@ -53,12 +53,20 @@ def features_at(xs, inter, starts, heights, near_lo, near_hi, u, v, c, s, half, 
     y1 = min(rows - 1, int(math.floor(v + reach)))
     ms = -s
     best, best_h, best_n = -1, -1, -1
+    near = np.zeros(n_stacks, np.bool_)
     for k in range(n_stacks):
-        if not (near_lo[k, 0] <= u <= near_hi[k, 0] and near_lo[k, 1] <= v <= near_hi[k, 1]):
+        near[k] = near_lo[k, 0] <= u <= near_hi[k, 0] and near_lo[k, 1] <= v <= near_hi[k, 1]
+    for k in range(n_stacks):
+        if not near[k]:
             continue
         h = heights[k]
         if h < best_h:  # the key is (height, count): a lower stack cannot win
             continue
+        # the count matters only against another nearby stack as tall; else any pixel will do
+        rival = False
+        for j in range(n_stacks):
+            if j != k and near[j] and heights[j] == h:
+                rival = True
         n = 0
         for y in range(y0, y1 + 1):
             dy = float(y) - v
@@ -69,38 +77,50 @@ def features_at(xs, inter, starts, heights, near_lo, near_hi, u, v, c, s, half, 
                     ly = dx * ms + dy * c
                     if ly >= -half and ly < half:
                         n += 1
+                        if not rival:
+                            break
+            if n > 0 and not rival:
+                break
         if n > 0 and (h > best_h or n > best_n):  # ties: the first stack in id order
             best, best_h, best_n = k, h, n
     if best < 0:
         return -1, 0
     k = best
-    # The outermost intersection pixels of each row inside the window, sorted by (y, x).
+    # The outermost intersection pixels of each row inside the window, sorted by (y, x). A
+    # row's pixels are sorted by x and each of the four window tests is monotonic in x (so is
+    # every rounded step of it): the row's pixels in the window are one run, found from both
+    # ends.
     px = np.empty(2 * (y1 - y0 + 1), np.int64)
     py = np.empty(2 * (y1 - y0 + 1), np.int64)
     npts = 0
-    m = 0
     for y in range(y0, y1 + 1):
         dy = float(y) - v
-        first, last = -1, -1
+        first = -1
         for i in range(starts[k, y], starts[k, y + 1]):
-            if not inter[i]:
-                continue
-            dx = float(xs[i]) - u
-            lx = dx * c + dy * s
-            if lx >= -half and lx < half:
-                ly = dx * ms + dy * c
-                if ly >= -half and ly < half:
-                    m += 1
-                    if first < 0:
-                        first = xs[i]
-                    last = xs[i]
-        if first >= 0:
-            px[npts], py[npts] = first, y
-            npts += 1
-            if last != first:
-                px[npts], py[npts] = last, y
-                npts += 1
-    if m < 3:
+            if inter[i]:
+                dx = float(xs[i]) - u
+                lx = dx * c + dy * s
+                if lx >= -half and lx < half:
+                    ly = dx * ms + dy * c
+                    if ly >= -half and ly < half:
+                        first = i
+                        break
+        if first < 0:
+            continue
+        px[npts], py[npts] = xs[first], y
+        npts += 1
+        for i in range(starts[k, y + 1] - 1, first, -1):
+            if inter[i]:
+                dx = float(xs[i]) - u
+                lx = dx * c + dy * s
+                if lx >= -half and lx < half:
+                    ly = dx * ms + dy * c
+                    if ly >= -half and ly < half:
+                        px[npts], py[npts] = xs[i], y
+                        npts += 1
+                        break
+    if npts < 3:
+        # one pixel, two, or one row's run: fewer than 3 pixels or no area; nothing inside
         return k, 0
     # Andrew's monotone chain over (y, x) order, collinear points dropped.
     hx = np.empty(2 * npts + 1, np.int64)
