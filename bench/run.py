@@ -43,12 +43,7 @@ def main() -> int:
             continue
         result = {
             "bench": name,
-            "machine": {
-                "python": platform.python_version(),
-                "cpus": _cpus(),
-                "cpu_model": _cpu_model(),
-                "platform": platform.platform(),
-            },
+            "machine": machine(),
             "bench_wall_s": round(time.perf_counter() - start, 2),
             **result,
         }
@@ -57,6 +52,16 @@ def main() -> int:
         print(json.dumps(result, indent=2))
         print(f"bench {name}: wrote {path}")
     return 1 if failed else 0
+
+
+def machine() -> dict:
+    """Where the figures were measured (a bench run as a script records it too)."""
+    return {
+        "python": platform.python_version(),
+        "cpus": _cpus(),
+        "cpu_model": _cpu_model(),
+        "platform": platform.platform(),
+    }
 
 
 def _cpus() -> int:

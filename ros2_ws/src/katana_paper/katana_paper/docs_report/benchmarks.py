@@ -63,14 +63,17 @@ def bench_perception(data: Json) -> str:
     """Segmentation beside one colour conversion of the frame, and the other vision timings."""
     floor = get(data, "perception_floor_ms")
     seg, seg8 = get(data, "perception_ms"), get(data, "perception_8_blocks_ms")
+    observe, observe_ref = get(data, "observe_ms"), get(data, "observe_reference_ms")
     rows = [
         (f"segmentation of one {get(data, 'image', default='')} frame, 4 blocks, ms", num(seg),
          f"one colour conversion of the frame: {num(floor)}", ratio(seg, floor),
          met_text(seg, get(data, "perception_target_ms"))),
         ("segmentation of a frame of 8 blocks, ms", num(seg8),
          f"the same conversion: {num(floor)}", ratio(seg8, floor), "-"),
-        (f"fovea/observe of a 4-block setting ({get(data, 'observe_instances')} instances), ms",
-         num(get(data, "observe_ms")), NONE_MEASURED, "-", "-"),
+        (f"fovea/observe of a 4-block setting ({get(data, 'observe_instances')} instances, "
+         f"{_identical(get(data, 'observe_identical_to_reference'))}), ms", num(observe),
+         f"its reference twin (`FoveaSceneReference`): {num(observe_ref)}",
+         ratio(observe, observe_ref), met_text(observe, get(data, "observe_target_ms"))),
         ("one placement judgement, ms", num(get(data, "judge_ms")), NONE_MEASURED, "-", "-"),
         ("the reach table fovea_node computes at start-up, ms",
          num(get(data, "reach_table_ms"), 1), NONE_MEASURED, "-", "-"),
@@ -80,6 +83,12 @@ def bench_perception(data: Json) -> str:
     ]
     return (table(SPEED_HEADER, rows) + "\n\nFrames from the "
             f"{get(data, 'frames', default=NOT_RECORDED)} renderer.")
+
+
+def _identical(same: Json) -> str:
+    if same is None:
+        return "not compared with its reference"
+    return "the same as its reference's" if same else "NOT the same as its reference's"
 
 
 def bench_sim(data: Json) -> str:
@@ -293,8 +302,11 @@ CPU time spread over the machine's CPUs), and the one-time compilation after a c
     "perception": ("the vision core", """\
 `bench/bench_perception.py`. Milliseconds, medians over repetitions: the segmentation of one
 camera frame beside its floor (the one colour conversion every segmentation starts with),
-`fovea/observe` of a 4-block setting, one placement judgement, the reach table `fovea_node`
-computes at start-up, and writing one camera frame into an MCAP recording (its chunk closed:
+`fovea/observe` of a 4-block setting beside its reference twin (the features computed as first
+written: every pixel of each nearby stack turned into the fovea frame and OpenCV's hull of the
+intersection pixels, at every location; the two are timed in alternation in the same run and
+must give the same instances), one placement judgement, the reach table `fovea_node` computes
+at start-up, and writing one camera frame into an MCAP recording (its chunk closed:
 zstd-compressed, indexed and handed to the OS)."""),
     "sim": ("the PyBullet simulation", """\
 `bench/bench_sim.py`. One 640x480 render, physics speed with the arm moving, and whole

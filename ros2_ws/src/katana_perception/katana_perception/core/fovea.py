@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from . import fovea_kernels
 from .calibration import Calibration
 from .memory import Block, top_height
 from .segmentation import wrap_quarter
@@ -34,6 +35,9 @@ from .segmentation import wrap_quarter
 N_POINTS = 5
 N_ACTIONS = N_POINTS + 1
 _SHIFT = 4
+_NO_BITS = (False,) * N_POINTS
+_BITS = tuple(tuple(bool(code >> i & 1) for i in range(N_POINTS)) for code in range(1 << N_POINTS))
+_ACTION_OF = {bits: sum(bits) + 1 for bits in _BITS}
 
 
 @dataclass
@@ -81,6 +85,8 @@ def probe_points(offset: float) -> np.ndarray:
 
 
 def action_of(bits: Sequence[bool]) -> int:
+    if type(bits) is tuple and (a := _ACTION_OF.get(bits)) is not None:  # the search's bits
+        return a
     return int(sum(bool(b) for b in bits)) + 1
 
 
@@ -95,8 +101,13 @@ def feature_vector(action: int, n_actions: int = N_ACTIONS) -> list[float]:
 
 
 def to_fovea_frame(points: np.ndarray, u: float, v: float, angle: float) -> np.ndarray:
+    """Image points in the frame of a fovea at (u, v) turned by `angle`. Elementwise, not a
+    matrix product: a BLAS kernel may fuse the multiply-adds, and then whether a pixel within
+    a rounding of the window's edge is in it would depend on the kernel, not on this formula
+    (which fovea_kernels repeats operation for operation)."""
     c, s = math.cos(angle), math.sin(angle)
-    return (np.asarray(points, dtype=np.float64) - (u, v)) @ np.array([[c, -s], [s, c]])
+    d = np.asarray(points, dtype=np.float64) - (u, v)
+    return np.column_stack([d[:, 0] * c + d[:, 1] * s, d[:, 0] * -s + d[:, 1] * c])
 
 
 def in_window(local: np.ndarray, size: float) -> np.ndarray:
@@ -143,6 +154,7 @@ class _Stack:
     inter: np.ndarray  # Nx2 pixel coordinates of all of its blocks' top faces
     lo: np.ndarray  # bounding box of `union`
     hi: np.ndarray
+    in_inter: np.ndarray  # per pixel of `union`: whether it is in `inter` too
 
     @property
     def height(self) -> int:
@@ -163,6 +175,27 @@ class _Stack:
         return all(b.upright for b in self.blocks)
 
 
+def _fill(poly: np.ndarray, height: int, width: int) -> np.ndarray:
+    m = np.zeros((height, width), dtype=np.uint8)
+    cv2.fillPoly(m, poly, 1, lineType=cv2.LINE_8, shift=_SHIFT)
+    return m.astype(bool)
+
+
+def _stack_of(chain: list[Block], masks: list[np.ndarray], x0: int, y0: int) -> _Stack:
+    """A stack from its blocks' face masks, whose pixel (0, 0) is image pixel (x0, y0)."""
+    union = np.logical_or.reduce(masks)
+    inter = np.logical_and.reduce(masks)
+    uy, ux = np.nonzero(union)
+    iy, ix = np.nonzero(inter)
+    upts = np.column_stack([ux + x0, uy + y0]).astype(np.float64)
+    ipts = np.column_stack([ix + x0, iy + y0]).astype(np.float64)
+    if len(upts):
+        lo, hi = upts.min(axis=0), upts.max(axis=0)
+    else:
+        lo, hi = np.array([np.inf, np.inf]), np.array([-np.inf, -np.inf])
+    return _Stack(chain, upts, ipts, lo, hi, inter[uy, ux])
+
+
 class NotFound(Exception):
     """No fovea location realises the requested state-action pair; the message says why."""
 
@@ -178,6 +211,8 @@ class FoveaScene:
 
     def __post_init__(self) -> None:
         self.params.validate()
+        self._probes = probe_points(self.params.offset_px)
+        self._grids: dict[float, list[tuple[float, float]]] = {}
         by_id = {b.id: b for b in self.blocks}
         above = {b.support: b for b in self.blocks if b.support is not None}
         self.stacks: list[_Stack] = []
@@ -189,54 +224,77 @@ class FoveaScene:
                 chain.append(above[chain[-1].id])
             self.stacks.append(self._build(chain))
         self.stacks.sort(key=lambda s: s.top.id)
+        self._pack()
 
-    def _face_mask(self, b: Block, level: int) -> np.ndarray:
-        c = self.calibration
-        if self.masks is not None and b.id in self.masks:
-            return np.asarray(self.masks[b.id], dtype=bool)
-        poly = c.square_polygon(b.x, b.y, b.yaw, top_height(level, b.size), b.size[0], b.size[1])
-        m = np.zeros((c.height, c.width), dtype=np.uint8)
-        pts = np.rint(poly * (1 << _SHIFT)).astype(np.int32).reshape(1, -1, 2)
-        cv2.fillPoly(m, pts, 1, lineType=cv2.LINE_8, shift=_SHIFT)
-        return m.astype(bool)
+    def _pack(self) -> None:
+        """All stacks' union pixels in one row-major array with per-row start indices, the
+        kernel's input: a fovea location reads only the rows its window can reach."""
+        rows = max((int(st.union[:, 1].max()) + 1 for st in self.stacks if len(st.union)),
+                   default=0)
+        xs, inter, starts = [], [], np.zeros((len(self.stacks), rows + 1), np.int64)
+        base = 0
+        for k, st in enumerate(self.stacks):
+            y = st.union[:, 1].astype(np.int64)
+            starts[k] = base + np.searchsorted(y, np.arange(rows + 1), side="left")
+            xs.append(st.union[:, 0].astype(np.int64))
+            inter.append(st.in_inter)
+            base += len(y)
+        reach = self.params.size_px / math.sqrt(2.0) + 1.0  # as _near
+        self._xs = np.concatenate(xs) if xs else np.zeros(0, np.int64)
+        self._inter = np.concatenate(inter) if inter else np.zeros(0, bool)
+        self._starts = starts
+        self._heights = np.array([st.height for st in self.stacks], np.int64)
+        self._near_lo = np.array([st.lo - reach for st in self.stacks]).reshape(-1, 2)
+        self._near_hi = np.array([st.hi + reach for st in self.stacks]).reshape(-1, 2)
+
+    def _face_poly(self, b: Block, level: int) -> np.ndarray:
+        """Block b's top face at `level` in the image, in fillPoly's fixed point (1/16 px)."""
+        poly = self.calibration.square_polygon(b.x, b.y, b.yaw, top_height(level, b.size),
+                                               b.size[0], b.size[1])
+        return np.rint(poly * (1 << _SHIFT)).astype(np.int32).reshape(1, -1, 2)
 
     def _build(self, chain: list[Block]) -> _Stack:
-        masks = [self._face_mask(b, i + 1) for i, b in enumerate(chain)]
-        union = np.logical_or.reduce(masks)
-        inter = np.logical_and.reduce(masks)
-        uy, ux = np.nonzero(union)
-        iy, ix = np.nonzero(inter)
-        upts = np.column_stack([ux, uy]).astype(np.float64)
-        ipts = np.column_stack([ix, iy]).astype(np.float64)
-        if len(upts):
-            lo, hi = upts.min(axis=0), upts.max(axis=0)
-        else:
-            lo, hi = np.array([np.inf, np.inf]), np.array([-np.inf, -np.inf])
-        return _Stack(chain, upts, ipts, lo, hi)
+        """The stack's union and intersection pixels, rasterised in the bounding box of its
+        faces only (a whole-image mask per block costs more than the fovea's search): fillPoly's
+        fixed-point scanlines shifted by whole pixels give the same pixels, shifted."""
+        c = self.calibration
+        if self.masks is not None and any(b.id in self.masks for b in chain):
+            return _stack_of(chain, [np.asarray(self.masks[b.id], dtype=bool)
+                                     if b.id in self.masks else _fill(self._face_poly(b, i + 1),
+                                                                      c.height, c.width)
+                                     for i, b in enumerate(chain)], 0, 0)
+        polys = [self._face_poly(b, i + 1) for i, b in enumerate(chain)]
+        pts = np.concatenate(polys, axis=1)[0]
+        # a pixel whose centre a face covers lies within its vertices' bounds, rounded out
+        x0 = max(0, (int(pts[:, 0].min()) >> _SHIFT) - 2)
+        y0 = max(0, (int(pts[:, 1].min()) >> _SHIFT) - 2)
+        x1 = min(c.width, (int(pts[:, 0].max()) >> _SHIFT) + 3)
+        y1 = min(c.height, (int(pts[:, 1].max()) >> _SHIFT) + 3)
+        if x1 <= x0 or y1 <= y0:
+            x0 = y0 = x1 = y1 = 0
+        shift = np.array([x0 << _SHIFT, y0 << _SHIFT], np.int32)
+        return _stack_of(chain, [_fill(p - shift, y1 - y0, x1 - x0) for p in polys], x0, y0)
 
     # ---------------------------------------------------------------- features
-    def _near(self, st: _Stack, u: float, v: float) -> bool:
-        reach = self.params.size_px / math.sqrt(2.0) + 1.0
-        return bool(st.lo[0] - reach <= u <= st.hi[0] + reach
-                    and st.lo[1] - reach <= v <= st.hi[1] + reach)
-
     def features_at(self, u: float, v: float, angle: float) -> tuple[int, _Stack | None, tuple]:
-        """(state, the stack under the fovea or None, the five bits) at one fovea location."""
-        size = self.params.size_px
-        best, best_key = None, None
-        for st in self.stacks:
-            if not self._near(st, u, v):
-                continue
-            n = int(in_window(to_fovea_frame(st.union, u, v, angle), size).sum())
-            if n == 0:
-                continue
-            key = (st.height, n)  # ties: the first stack in id order
-            if best_key is None or key > best_key:
-                best, best_key = st, key
-        if best is None:
-            return 0, None, (False,) * N_POINTS
-        local = to_fovea_frame(best.inter, u, v, angle)
-        return best.height, best, hull_bits(local[in_window(local, size)], self.params.offset_px)
+        """(state, the stack under the fovea or None, the five bits) at one fovea location.
+
+        Compiled (fovea_kernels); FoveaSceneReference is the definition it is tested against."""
+        if not self.stacks:
+            return 0, None, _NO_BITS
+        c, s = math.cos(angle), math.sin(angle)
+        k, code = fovea_kernels.features_at(
+            self._xs, self._inter, self._starts, self._heights, self._near_lo,
+            self._near_hi, float(u), float(v), c, s, self.params.size_px / 2.0, self._probes,
+            fovea_kernels.TOLERANCE_PX)
+        if k < 0:
+            return 0, None, _NO_BITS
+        st = self.stacks[k]
+        if code == fovea_kernels.UNSURE:  # a probe point (almost) on the hull: as the reference
+            local = to_fovea_frame(st.inter, u, v, angle)
+            return st.height, st, hull_bits(local[in_window(local, self.params.size_px)],
+                                            self.params.offset_px)
+        return st.height, st, _BITS[code]
 
     # ---------------------------------------------------------------- checks
     def reach(self, height: int) -> tuple[float, float]:
@@ -307,11 +365,12 @@ class FoveaScene:
         z = top_height(st.height, top.size)
         u0, v0 = (float(a) for a in c.world_to_pixel(top.x, top.y, z))
         ang = c.yaw_to_image_angle(top.x, top.y, top.yaw, z)
-        e1 = np.array([math.cos(ang), math.sin(ang)])
-        e2 = np.array([-math.sin(ang), math.cos(ang)])
-        for du, dv in self._grid(step):
-            p = np.array([u0, v0]) + du * e1 + dv * e2
-            yield float(p[0]), float(p[1]), ang
+        # u0 + du e1 + dv e2 in Python floats: the same IEEE operations as on 2-vectors
+        e1u, e1v, e2u, e2v = math.cos(ang), math.sin(ang), -math.sin(ang), math.cos(ang)
+        if step not in self._grids:
+            self._grids[step] = self._grid(step)
+        for du, dv in self._grids[step]:
+            yield u0 + du * e1u + dv * e2u, v0 + du * e1v + dv * e2v, ang
 
     def _table_places(self):
         p = self.params
@@ -408,3 +467,53 @@ def _overlap_area(x: float, y: float, yaw: float, sx: float, sy: float, b: Block
     if kind == cv2.INTERSECT_NONE or pts is None or len(pts) < 3:
         return 0.0
     return float(cv2.contourArea(cv2.convexHull(pts.reshape(-1, 2).astype(np.float32)))) * 1e-6
+
+
+class FoveaSceneReference(FoveaScene):
+    """The fovea's features as first written, the definition FoveaScene's compiled path is
+    tested against (and benchmarked beside): at each location, every pixel of each nearby
+    stack is turned into the fovea frame, and OpenCV hulls the intersection pixels in the
+    window. Only tests and benches use it."""
+
+    def _face_mask(self, b: Block, level: int) -> np.ndarray:
+        c = self.calibration
+        if self.masks is not None and b.id in self.masks:
+            return np.asarray(self.masks[b.id], dtype=bool)
+        return _fill(self._face_poly(b, level), c.height, c.width)
+
+    def _build(self, chain: list[Block]) -> _Stack:
+        return _stack_of(chain, [self._face_mask(b, i + 1) for i, b in enumerate(chain)], 0, 0)
+
+    def _around(self, st: _Stack, step: float):
+        c = self.calibration
+        top = st.top
+        z = top_height(st.height, top.size)
+        u0, v0 = (float(a) for a in c.world_to_pixel(top.x, top.y, z))
+        ang = c.yaw_to_image_angle(top.x, top.y, top.yaw, z)
+        e1 = np.array([math.cos(ang), math.sin(ang)])
+        e2 = np.array([-math.sin(ang), math.cos(ang)])
+        for du, dv in self._grid(step):
+            p = np.array([u0, v0]) + du * e1 + dv * e2
+            yield float(p[0]), float(p[1]), ang
+
+    def _near(self, st: _Stack, u: float, v: float) -> bool:
+        reach = self.params.size_px / math.sqrt(2.0) + 1.0
+        return bool(st.lo[0] - reach <= u <= st.hi[0] + reach
+                    and st.lo[1] - reach <= v <= st.hi[1] + reach)
+
+    def features_at(self, u: float, v: float, angle: float) -> tuple[int, _Stack | None, tuple]:
+        size = self.params.size_px
+        best, best_key = None, None
+        for st in self.stacks:
+            if not self._near(st, u, v):
+                continue
+            n = int(in_window(to_fovea_frame(st.union, u, v, angle), size).sum())
+            if n == 0:
+                continue
+            key = (st.height, n)  # ties: the first stack in id order
+            if best_key is None or key > best_key:
+                best, best_key = st, key
+        if best is None:
+            return 0, None, (False,) * N_POINTS
+        local = to_fovea_frame(best.inter, u, v, angle)
+        return best.height, best, hull_bits(local[in_window(local, size)], self.params.offset_px)
