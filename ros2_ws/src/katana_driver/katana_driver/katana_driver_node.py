@@ -58,6 +58,8 @@ class KatanaDriverNode(Node):
             reconnect_period=params["reconnect_period"],
             calibration_timeout=params["calibration_timeout"],
             on_state=self._publish_state, log=self._log,
+            limit_margin=params["limit_margin_encoders"], speed_limits=params["speed_limits"],
+            acceleration_limits=params["acceleration_limits"],
         )
         params.on_change(self._apply)
         self._flags = threading.Lock()  # one goal (arm or gripper) at a time
