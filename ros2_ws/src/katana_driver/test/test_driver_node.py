@@ -164,13 +164,14 @@ def test_follows_a_trajectory_in_any_joint_order(graph):
         ([(0.3, [0.0, 1.8, -1.8, -1.5, -2.5])], ARM_JOINTS, -1, "rad/s"),
         ([(1.0, [0.0] * 5)], ("a", "b", "c", "d", "e"), -2, "unknown or non-arm joints"),
         ([], ARM_JOINTS, -1, "no points"),
-        # 45 encoders from motor 1's stop, inside the joint limits: within the margin
+        # 45 encoders from motor 1's stop, inside the joint limits: within the margin (the
+        # arm contract refuses it, with the driver's limit_margin_encoders)
         ([(2.0, [-3.02, 1.8, -1.8, -1.5, -2.5])], ARM_JOINTS, -1,
-         "encoders from the end of its range; targets stay 200 encoders inside it"),
+         "within 200 encoders of its limits; targets stay in"),
         # 0.6 rad of motor 2 in 1.2 s, under its speed limit: 3.8 encoders per (10 ms)^2 at
-        # the start (6 d / T^2), above KNI's 2
+        # the start (6 d / T^2), above KNI's 2 (the driver's acceleration_limits)
         ([(1.2, [-2.5, 1.55, -1.8, -1.5, -2.5])], ARM_JOINTS, -1,
-         "katana_motor2_lift_joint would accelerate at"),
+         "above its acceleration limit 1.323 rad/s^2"),
     ],
 )
 def test_refuses_goals_it_cannot_run(graph, points, names, code, text):

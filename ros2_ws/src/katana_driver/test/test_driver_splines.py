@@ -147,3 +147,18 @@ def test_cubic_speed_and_extremes_match_brute_force(c0, c1, c2, c3, duration):
     lo, hi = cubic_extremes((c0, c1, c2, c3), duration)
     assert lo == pytest.approx(pos.min(), abs=1e-3 * scale * duration)
     assert hi == pytest.approx(pos.max(), abs=1e-3 * scale * duration)
+
+
+def test_a_motor_held_inside_the_margin_is_no_new_target():
+    """The arm rests 100 encoders from motor 1's stop (inside the 200-encoder margin): a goal
+    that moves the other motors and holds motor 1 there (as a partial goal's completion does)
+    is planned; one that sends motor 1 to another point inside the margin is refused."""
+    lo, hi = MODEL.encoder_range(1)
+    here = MODEL.encoder_to_angle(1, hi - 100)
+    start = encoders_of([here, *HOME[1:]])
+    moved = [here, HOME[1] + 0.2, *HOME[2:]]
+    plan = plan_trajectory(MODEL, start, [2.0], [moved])
+    assert all(row[0].target == start[0] for row in plan.segments)
+    deeper = MODEL.encoder_to_angle(1, hi - 150)
+    with pytest.raises(TrajectoryError, match="limit_margin_encoders"):
+        plan_trajectory(MODEL, start, [2.0], [[deeper, *moved[1:]]])

@@ -91,8 +91,9 @@ GRIPPER_MOTOR = MotorParams(51200, 31000, -119.5, 1, 329.0, 0.0)
 
 #: The default of katana_driver_node's limit_margin_encoders: targets, trajectories and the
 #: calibration back-off stay this many encoders inside every motor's encoder range (a real
-#: controller is reported to refuse targets within about 200 encoders of its limits).
-DEFAULT_LIMIT_MARGIN_ENC = 200
+#: controller is reported to refuse targets within about 200 encoders of its limits). One
+#: source with the arm contract and the planner: katana_description.models.
+DEFAULT_LIMIT_MARGIN_ENC = models.LIMIT_MARGIN_ENC
 
 
 def _wrap(angle: float) -> float:
@@ -108,12 +109,13 @@ class EncoderModel:
         self.variant = variant
         m5_offset = -171.5 if variant == "6M90B" else 8.5
         pi = math.pi
+        ticks = [models.ENCODERS_PER_REV[j] for j in ARM_JOINTS]
         self.motors = (
-            MotorParams(51200, 31000, 6.65, 1, 339.0, pi),
-            MotorParams(94976, -31000, 124.25, 1, -132.0, 0.0),
-            MotorParams(47488, -31000, 52.7, -1, 245.0, pi),
-            MotorParams(51200, 31000, 63.5, 1, 224.0, pi),
-            MotorParams(51200, 31000, m5_offset, 1, 336.0, pi),
+            MotorParams(ticks[0], 31000, 6.65, 1, 339.0, pi),
+            MotorParams(ticks[1], -31000, 124.25, 1, -132.0, 0.0),
+            MotorParams(ticks[2], -31000, 52.7, -1, 245.0, pi),
+            MotorParams(ticks[3], 31000, 63.5, 1, 224.0, pi),
+            MotorParams(ticks[4], 31000, m5_offset, 1, 336.0, pi),
         )
 
     # ------------------------------------------------------------------ arm motors 1..5

@@ -15,6 +15,7 @@ import struct
 from dataclasses import dataclass
 
 from crc import Calculator, Crc16
+from katana_description import models
 
 HEADER = 0x01
 ADDRESS = 0x18  # the controller's bus address, 24
@@ -63,9 +64,10 @@ SUB_SPEED_LIMIT = 3
 SUB_ACCEL_LIMIT = 4
 #: what the ROS 1 katana node sends to every motor at start-up (Katana::Katana() with
 #: katana_constants.h: KNI_MAX_VELOCITY = 180 "velocity limit <= 180 [enc / 10 ms]",
-#: KNI_MAX_ACCELERATION = 2 "acceleration limit = 1 or 2 [enc / (10 ms)^2]")
-KNI_MAX_VELOCITY = 180
-KNI_MAX_ACCELERATION = 2
+#: KNI_MAX_ACCELERATION = 2 "acceleration limit = 1 or 2 [enc / (10 ms)^2]"); one source with
+#: the arm contract and the planner: katana_description.models
+KNI_MAX_VELOCITY = models.KNI_MAX_VELOCITY
+KNI_MAX_ACCELERATION = models.KNI_MAX_ACCELERATION
 
 # Activity flag of H (as the ROS 1 driver used it): more segments follow and start now,
 # this is the last segment (start now), more follow and do not start yet.
@@ -74,7 +76,7 @@ ACTIVITY_LAST = 1
 ACTIVITY_QUEUE = 2
 
 FIRMWARE_SPEED_LIMIT = 180  # encoders per 10 ms
-TICK_S = 0.01  # spline time unit: 10 ms
+TICK_S = models.CONTROL_TICK_S  # spline time unit: 10 ms
 SPLINE_SCALE = (1, 64, 1024, 32768)  # pos(t) = p0 + p1/64 t + p2/1024 t^2 + p3/32768 t^3
 
 INT16_MIN, INT16_MAX = -32768, 32767

@@ -195,8 +195,8 @@ def plan_trajectory(
     """
     times, q, v = _checked_goal(times_s, positions, velocities)
     at_start = bool(np.round(times[0] / TICK_S) <= 0.0)  # a point at t=0: where the arm is
-    enc, enc_per_tick = _encoder_knots(model, q, v, limit_margin, at_start)
     start = np.asarray(start_encoders[:5], dtype=float)
+    enc, enc_per_tick = _encoder_knots(model, q, v, limit_margin, at_start, start)
     ticks, enc, enc_per_tick = _from_start(model, start, times, enc, enc_per_tick,
                                            min_segment_ticks)
     curve, knot_ticks = _knot_curve(ticks, enc, enc_per_tick, min_segment_ticks)
@@ -261,16 +261,20 @@ _ON_LIMIT_ENC = 1.0
 
 
 def _encoder_knots(
-    model: EncoderModel, q: np.ndarray, v: np.ndarray | None, margin: int, at_start: bool
+    model: EncoderModel, q: np.ndarray, v: np.ndarray | None, margin: int, at_start: bool,
+    start: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The knots in encoder space and their slopes per tick. Every knot must lie ``margin``
     encoders inside the encoder range, but for a first knot at t=0 (it stands for where the
-    arm is, which _from_start checks): that one must only be inside the joint limits."""
+    arm is, which _from_start checks) and a motor held where it is at every knot (no new
+    target: the joints a partial goal leaves out): those must only be inside the limits."""
     enc = np.empty_like(q)
     for j in range(5):
         lo, hi = model.encoder_range(j + 1)
         lo_rad, hi_rad = model.joint_limits(j + 1)
         per_rad = abs(model.params(j + 1).enc_per_rad)
+        held = all(abs(model.angle_to_encoder(j + 1, a) - start[j]) <= _ON_LIMIT_ENC
+                   for a in q[:, j])
         for k in range(len(q)):
             e = model.angle_to_encoder(j + 1, q[k, j])
             if not lo - _ON_LIMIT_ENC <= e <= hi + _ON_LIMIT_ENC:
@@ -278,7 +282,7 @@ def _encoder_knots(
                     f"point {k}: {ARM_JOINTS[j]} = {q[k, j]:.4f} rad is outside its limits "
                     f"[{lo_rad:.4f}, {hi_rad:.4f}]"
                 )
-            if not (k == 0 and at_start) and not lo + margin <= e <= hi - margin:
+            if not ((k == 0 and at_start) or held) and not lo + margin <= e <= hi - margin:
                 raise TrajectoryError(
                     f"point {k}: {ARM_JOINTS[j]} = {q[k, j]:.4f} rad is "
                     f"{min(abs(e - lo), abs(hi - e)):.0f} encoders from the end of its range; "
