@@ -8,7 +8,11 @@ API (stable; plain Python in, plain Python out):
 
 - ``ArmContract(model="450_6m180", max_trajectory_s=60.0, default_goal_tolerance_rad=0.01,
   default_goal_time_tolerance_s=1.0, ...)``: the per-backend settings; ``ValueError`` when
-  one is out of range. ``contract.limits`` and ``contract.max_speed`` give the joint facts.
+  one is out of range. ``contract.limits`` and ``contract.max_speed`` give the joint facts;
+  ``contract.target_limits`` the limits shrunk by ``limit_margin_enc`` encoders (where targets
+  may lie) and ``contract.max_accel`` the acceleration limits (rad/s^2) from
+  ``acceleration_limits`` (encoders per 10 ms tick squared, motors 1..5). The defaults are the
+  driver's (katana_description.models: LIMIT_MARGIN_ENC 200, KNI_MAX_ACCELERATION 2).
 - ``TrajectoryGoal(joint_names, times_s, positions, velocities=None, path_tolerance={},
   goal_tolerance={}, goal_time_tolerance_s=0.0, multi_dof_joints=())``: a
   FollowJointTrajectory goal; ``multi_dof_joints`` names the joints of its multi-DOF parts
@@ -19,16 +23,19 @@ API (stable; plain Python in, plain Python out):
   negative = no tolerance (control_msgs' meaning).
 - ``validate_trajectory(goal, current, contract) -> Verdict``: ``Verdict(SUCCESSFUL, "")`` or
   the error code and a reason. ``current`` maps every arm joint to its measured angle (rad).
-  Checked: names (arm joints only, no duplicates, no multi-DOF parts, INVALID_JOINTS; a
-  partial goal names a subset and the other joints hold where they are), at least one point,
-  finite times >= 0, strictly increasing, last point within ``max_trajectory_s``; finite
-  positions within the model's limits (no wrapping: every Katana joint is a bounded revolute
-  joint whose range is under 2 pi, so ``q + 2 pi`` is a different, unreachable, command);
-  velocities finite, one per joint or none, zero at the last point (both backends stop there);
-  a point at t = 0 within ``START_JUMP_RAD`` of ``current``; the peak speed of every cubic
-  Hermite segment (the first from ``current`` at rest) within the joint's limit times
-  ``speed_margin``; tolerances finite, for joints of the goal, no duplicates;
-  ``goal_time_tolerance_s`` finite and >= 0.
+  Checked: names (arm joints only, no duplicates, no multi-DOF parts, INVALID_JOINTS; a partial goal names a
+  subset and the other joints hold where they are), at least one point, finite times >= 0,
+  strictly increasing, last point within ``max_trajectory_s``; finite positions within the
+  model's limits (no wrapping: every Katana joint is a bounded revolute joint whose range
+  is under 2 pi, so ``q + 2 pi`` is a different, unreachable, command), and every point after
+  t = 0 within ``target_limits`` (a point at t = 0 stands for where the arm is, which may be
+  closer to a limit; so may a joint the goal holds where it is at every point); velocities
+  finite, one
+  per joint or none, zero at the last point (both backends stop there); a point at t = 0 within
+  ``START_JUMP_RAD`` of ``current``; the peak speed of every cubic Hermite segment (the first
+  from ``current`` at rest) within the joint's limit times ``speed_margin``, and its peak
+  acceleration within ``max_accel`` (no margin: the controller's limit); tolerances finite,
+  for joints of the goal, no duplicates; ``goal_time_tolerance_s`` finite and >= 0.
 - ``complete_trajectory(goal, current) -> TrajectoryGoal``: the goal on all five arm joints in
   ``models.ARM_JOINTS`` order (joints a partial goal leaves out hold ``current``); velocities
   ``None`` when the goal gives none. Call it on a validated goal.
@@ -40,8 +47,8 @@ API (stable; plain Python in, plain Python out):
   (the backend's own "motion finished" signal), and fails with GOAL_TOLERANCE_VIOLATED after
   ``goal_time_s`` more. Errors are plain differences ``actual - desired`` (see wrapping above).
 - ``Outcome``: ``status`` (RUNNING, SUCCEEDED, ABORTED, CANCELED), ``error_code``,
-  ``message``; ``done``. ``hermite_peak_speed`` and ``joint_error`` are the helpers the rules
-  use.
+  ``message``; ``done``. ``hermite_peak_speed``, ``hermite_peak_accel`` and ``joint_error``
+  are the helpers the rules use.
 
 The gripper's goals follow the same contract in :mod:`katana_description.gripper_contract`.
 """
@@ -102,6 +109,8 @@ class ArmContract:
     gripper_stall_speed: float = 0.02
     gripper_stall_time_s: float = 0.1
     gripper_timeout_s: float = 1.5
+    limit_margin_enc: int = m.LIMIT_MARGIN_ENC
+    acceleration_limits: tuple[float, ...] = (m.KNI_MAX_ACCELERATION,) * len(m.ARM_JOINTS)
 
     def __post_init__(self) -> None:
         m.get_model(self.model)  # ValueError naming the known models
@@ -123,6 +132,14 @@ class ArmContract:
             raise ValueError("default_goal_time_tolerance_s must be finite and >= 0")
         if not (math.isfinite(self.speed_margin) and 1.0 <= self.speed_margin <= 1.2):
             raise ValueError(f"speed_margin must be in [1, 1.2], got {self.speed_margin}")
+        if not 0 <= self.limit_margin_enc <= 2000:
+            raise ValueError(f"limit_margin_enc must be in [0, 2000], got {self.limit_margin_enc}")
+        accel = tuple(self.acceleration_limits)
+        if len(accel) != len(m.ARM_JOINTS) or not all(
+            math.isfinite(a) and a > 0.0 for a in accel
+        ):
+            raise ValueError("acceleration_limits needs one finite value > 0 per arm joint, "
+                             f"got {accel}")
 
     @property
     def limits(self) -> dict[str, tuple[float, float]]:
@@ -131,6 +148,17 @@ class ArmContract:
     @property
     def max_speed(self) -> dict[str, float]:
         return m.JOINT_MAX_SPEED
+
+    @property
+    def target_limits(self) -> dict[str, tuple[float, float]]:
+        """Where targets may lie: the limits shrunk by limit_margin_enc encoders."""
+        return m.inner_limits(self.limits, self.limit_margin_enc)
+
+    @property
+    def max_accel(self) -> dict[str, float]:
+        """rad/s^2 per arm joint, from acceleration_limits."""
+        return {j: m.accel_limit_rad_s2(j, a)
+                for j, a in zip(m.ARM_JOINTS, self.acceleration_limits, strict=True)}
 
 
 @dataclass(frozen=True)
@@ -174,6 +202,13 @@ def hermite_peak_speed(p0: float, p1: float, v0: float, v1: float, h: float) -> 
         if 0.0 < s < 1.0:
             candidates.append(abs(a * s * s + b * s + v0))
     return max(candidates)
+
+
+def hermite_peak_accel(p0: float, p1: float, v0: float, v1: float, h: float) -> float:
+    """Largest |acceleration| of the cubic Hermite segment from (p0, v0) to (p1, v1) over h
+    seconds. Its acceleration is linear in time: the peak is at an end."""
+    d = (p1 - p0) / h
+    return max(abs(6.0 * d - 4.0 * v0 - 2.0 * v1), abs(-6.0 * d + 2.0 * v0 + 4.0 * v1)) / h
 
 
 def joint_error(actual: float, desired: float) -> float:
@@ -231,7 +266,8 @@ def validate_trajectory(
         return Verdict(
             INVALID_GOAL, (f"{len(goal.positions)} position rows for {len(times)} points")
         )
-    limits, speeds = contract.limits, contract.max_speed
+    limits, speeds, targets = contract.limits, contract.max_speed, contract.target_limits
+    held = _held(names, goal.positions, current)
     prev_t = -math.inf
     for i, (t, row) in enumerate(zip(times, goal.positions, strict=True)):
         if not math.isfinite(t) or t < 0.0:
@@ -253,6 +289,13 @@ def validate_trajectory(
             if not lo - LIMIT_SLACK_RAD <= q <= hi + LIMIT_SLACK_RAD:
                 return Verdict(
                     INVALID_GOAL, (f"point {i}: {n} = {q:.6f} rad outside its limits [{lo}, {hi}]")
+                )
+            lo, hi = targets[n]
+            if t > 0.0 and n not in held and not lo - LIMIT_SLACK_RAD <= q <= hi + LIMIT_SLACK_RAD:
+                return Verdict(
+                    INVALID_GOAL,
+                    (f"point {i}: {n} = {q:.6f} rad is within {contract.limit_margin_enc} "
+                     f"encoders of its limits; targets stay in [{lo:.6f}, {hi:.6f}]"),
                 )
     if times[-1] > contract.max_trajectory_s:
         return Verdict(
@@ -281,6 +324,21 @@ def validate_trajectory(
     return OK
 
 
+def _held(names: Sequence[str], positions, current: Mapping[str, float]) -> set[str]:
+    """The joints a goal keeps where they are at every point: a hold is no new target, so it
+    may be anywhere within the limits (as the joints a partial goal leaves out)."""
+    held = set()
+    for j, n in enumerate(names):
+        here = current.get(n)
+        try:
+            if here is not None and all(abs(float(row[j]) - float(here)) <= LIMIT_SLACK_RAD
+                                        for row in positions):
+                held.add(n)
+        except (IndexError, TypeError, ValueError):
+            continue
+    return held
+
+
 def _velocity_rows(goal: TrajectoryGoal, n_joints: int) -> list[list[float]] | None | Verdict:
     if goal.velocities is None:
         return None
@@ -304,6 +362,7 @@ def _velocity_rows(goal: TrajectoryGoal, n_joints: int) -> list[list[float]] | N
 
 def _check_speeds(names, times, positions, velocities, current, contract, speeds) -> Verdict:
     prev_t, prev_q, prev_v = 0.0, [float(current[n]) for n in names], [0.0] * len(names)
+    accels = contract.max_accel
     for i, (t, row) in enumerate(zip(times, positions, strict=True)):
         vel = velocities[i] if velocities is not None else [0.0] * len(names)
         dt = t - prev_t
@@ -327,6 +386,16 @@ def _check_speeds(names, times, positions, velocities, current, contract, speeds
                     (
                         f"segment to point {i}: {n} needs {peak:.3f} rad/s, above its limit "
                         f"{limit:.3f} rad/s; give the trajectory more time"
+                    ),
+                )
+            accel = hermite_peak_accel(prev_q[j], row[j], prev_v[j], vel[j], dt)
+            limit = accels[n]
+            if accel > limit * (1.0 + 1e-6):
+                return Verdict(
+                    INVALID_GOAL,
+                    (
+                        f"segment to point {i}: {n} needs {accel:.3f} rad/s^2, above its "
+                        f"acceleration limit {limit:.3f} rad/s^2; give the trajectory more time"
                     ),
                 )
         prev_t, prev_q, prev_v = t, [float(q) for q in row], list(vel)

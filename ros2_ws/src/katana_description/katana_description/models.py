@@ -40,6 +40,55 @@ JOINT_MAX_SPEED: dict[str, float] = {
     "katana_r_finger_joint": 0.718834,
     "katana_l_finger_joint": 0.718834,
 }
+#: Encoder ticks per motor revolution of the arm joints (KNI's Katana 450 configuration,
+#: docs/KATANA.md): the one source of the driver's encoder model and of the limits below.
+ENCODERS_PER_REV: dict[str, int] = {
+    "katana_motor1_pan_joint": 51200,
+    "katana_motor2_lift_joint": 94976,
+    "katana_motor3_lift_joint": 47488,
+    "katana_motor4_lift_joint": 51200,
+    "katana_motor5_wrist_roll_joint": 51200,
+}
+#: The controller's time step, s: spline durations, speed and acceleration limits count in it.
+CONTROL_TICK_S = 0.01
+#: Speed limit every motor gets at start-up, encoders per tick: KNI_MAX_VELOCITY of the ROS 1
+#: katana node (katana_constants.h, "velocity limit <= 180 [enc / 10 ms]").
+KNI_MAX_VELOCITY = 180
+#: Acceleration limit every motor gets at start-up, encoders per tick squared:
+#: KNI_MAX_ACCELERATION of the ROS 1 katana node (katana_constants.h, "1 or 2").
+KNI_MAX_ACCELERATION = 2
+#: Encoders every target stays inside each motor's encoder range (a real controller is reported
+#: to refuse targets within about 200 encoders of its limits). The default of the driver's
+#: limit_margin_encoders, and what the arm contract (both backends) and the planner keep.
+LIMIT_MARGIN_ENC = 200
+
+
+def encoders_per_rad(joint: str) -> float:
+    """|d encoder / d angle| of an arm joint."""
+    return ENCODERS_PER_REV[joint] / (2.0 * math.pi)
+
+
+def accel_limit_rad_s2(joint: str, accel_enc: float = KNI_MAX_ACCELERATION) -> float:
+    """An arm joint's acceleration limit in rad/s^2 from encoders per tick squared."""
+    return accel_enc / (encoders_per_rad(joint) * CONTROL_TICK_S**2)
+
+
+def inner_limits(limits: dict[str, tuple[float, float]],
+                 margin_enc: float = LIMIT_MARGIN_ENC) -> dict[str, tuple[float, float]]:
+    """The arm joints' limits shrunk by ``margin_enc`` encoders at both ends (the fingers'
+    limits as they are: the gripper's own map keeps them inside its motor's range)."""
+    out = dict(limits)
+    for joint in ARM_JOINTS:
+        lo, hi = limits[joint]
+        d = margin_enc / encoders_per_rad(joint)
+        out[joint] = (lo + d, hi - d)
+    return out
+
+
+#: rad/s^2 each arm joint may accelerate at under KNI_MAX_ACCELERATION (motor 2, with the most
+#: encoders per radian, least: about 1.32; motors 1, 4, 5 about 2.45; motor 3 about 2.65).
+JOINT_MAX_ACCEL: dict[str, float] = {j: accel_limit_rad_s2(j) for j in ARM_JOINTS}
+
 #: N m the simulated motors may use. Not the URDF's effort limits (measured with gravity off):
 #: holding the arm horizontal needs about 6.9 N m at motor 2, so these leave a wide margin.
 SIM_MOTOR_TORQUE: dict[str, float] = {

@@ -25,25 +25,39 @@ ACTION = (
 )
 
 
-def _within(name: str):
+#: independent of the contract: the controller's acceleration limit, 2 encoders per 10 ms tick
+#: squared, in rad/s^2 from each motor's encoder ticks per revolution (docs/KATANA.md), and the
+#: 200-encoder margin in rad
+TICKS_PER_REV = (51200, 94976, 47488, 51200, 51200)
+ACCEL = {n: 2.0 / (t / (2.0 * math.pi)) / 0.01**2 for n, t in zip(m.ARM_JOINTS, TICKS_PER_REV,
+                                                                   strict=True)}
+MARGIN_RAD = {n: 200.0 / (t / (2.0 * math.pi)) for n, t in zip(m.ARM_JOINTS, TICKS_PER_REV,
+                                                               strict=True)}
+
+
+def _within(name: str, margin: bool = False):
+    """Angles within the joint limits (``margin``: within the targets' limits, 200 encoders in)."""
     lo, hi = m.JOINT_LIMITS[name]
-    return st.floats(lo, hi, allow_nan=False)
+    d = MARGIN_RAD[name] * 1.0001 if margin else 0.0
+    return st.floats(lo + d, hi - d, allow_nan=False)
 
 
 @st.composite
 def valid_goals(draw, partial: bool = True):
-    """Goals that obey every rule: joints within limits, segments slow enough at rest."""
+    """Goals that obey every rule: targets 200 encoders inside the joint limits (where the arm
+    is need not be), segments slow enough at rest (speed and acceleration)."""
     names = list(m.ARM_JOINTS)
     if partial:
         names = draw(st.lists(st.sampled_from(m.ARM_JOINTS), min_size=1, max_size=5, unique=True))
     current = {n: draw(_within(n)) for n in m.ARM_JOINTS}
     n_points = draw(st.integers(1, 4))
-    rows = [[draw(_within(n)) for n in names] for _ in range(n_points)]
+    rows = [[draw(_within(n, margin=True)) for n in names] for _ in range(n_points)]
     times, prev, t = [], [current[n] for n in names], 0.0
     for row in rows:
-        # at rest at both ends a Hermite segment peaks at 1.5 x its mean speed
+        # at rest at both ends a Hermite segment peaks at 1.5 x its mean speed and at
+        # 6 d / h^2 acceleration (at both ends)
         need = max(
-            1.5 * abs(q - p) / m.JOINT_MAX_SPEED[n]
+            max(1.5 * abs(q - p) / m.JOINT_MAX_SPEED[n], math.sqrt(6.0 * abs(q - p) / ACCEL[n]))
             for n, q, p in zip(names, row, prev, strict=True)
         )
         t += max(need * draw(st.floats(1.0, 3.0)), 0.01)
@@ -118,6 +132,8 @@ def test_completion_holds_the_joints_a_partial_goal_leaves_out(case):
             "neg_gtt",
             "tol_other_joint",
             "fast",
+            "margin",
+            "accel",
             "last_velocity",
             "short_row",
             "neg_time",
@@ -159,6 +175,16 @@ def test_each_broken_rule_is_refused_with_its_code(case, fault):
     elif fault == "fast":  # the whole range in 10 ms
         rows[0][0] = hi if current[n0] - lo < hi - current[n0] else lo
         times = [0.01 + 0.01 * i for i in range(len(times))]
+    elif fault == "margin":  # inside the joint limits, but within 200 encoders of one
+        rows[-1][0] = hi - 0.5 * MARGIN_RAD[n0]
+        times = [t + 1e3 for t in times]  # slow enough for any move
+    elif fault == "accel":  # one move at twice the acceleration limit, well within the speed
+        h = 0.4
+        d = 2.0 * ACCEL[n0] * h * h / 6.0
+        mid = 0.5 * (lo + hi)
+        names, times = [n0], [h]
+        rows = [[current[n0] + (d if current[n0] < mid else -d)]]
+        assert 1.5 * d / h < m.JOINT_MAX_SPEED[n0]
     elif fault == "last_velocity":
         kw["velocities"] = [[0.0] * len(names) for _ in times]
         kw["velocities"][-1][0] = 0.1
@@ -170,6 +196,10 @@ def test_each_broken_rule_is_refused_with_its_code(case, fault):
     verdict = ac.validate_trajectory(bad, current, CONTRACT)
     assert verdict.error_code == code, (fault, verdict)
     assert verdict.error_string
+    if fault == "margin":
+        assert "within 200 encoders" in verdict.error_string
+    if fault == "accel":
+        assert "acceleration" in verdict.error_string
 
 
 @pytest.mark.parametrize(
@@ -356,3 +386,40 @@ def test_contract_settings_are_checked():
         ac.ArmContract(max_trajectory_s=math.inf)
     with pytest.raises(ValueError, match="6M90A"):
         ac.ArmContract(model="450_6m90a")
+
+
+@pytest.mark.parametrize("joint", m.ARM_JOINTS)
+def test_acceleration_limit_is_the_controllers(joint):
+    """A rest-to-rest move just under 2 encoders per tick squared is accepted, just over it
+    refused (6 d / h^2 at its ends); the limit is the driver's, from the same constants."""
+    assert CONTRACT.max_accel[joint] == pytest.approx(ACCEL[joint], rel=1e-12)
+    h = 0.5
+    lo, hi = CONTRACT.target_limits[joint]
+    start = dict(REST)
+    for factor, ok in ((0.99, True), (1.01, False)):
+        d = factor * ACCEL[joint] * h * h / 6.0
+        goal = ac.TrajectoryGoal([joint], [h], [[REST[joint] + d]])
+        assert ac.validate_trajectory(goal, start, CONTRACT).ok == ok, factor
+    # a contract with another limit (a driver set to acceleration_limits 1) halves it
+    slow = ac.ArmContract(acceleration_limits=(1.0,) * 5)
+    assert slow.max_accel[joint] == pytest.approx(ACCEL[joint] / 2.0)
+
+
+@pytest.mark.parametrize("joint", m.ARM_JOINTS)
+def test_targets_keep_the_limit_margin_but_the_start_may_not(joint):
+    """Targets 200 encoders inside the limits are accepted, closer ones refused; a point at
+    t = 0 (where the arm is) may be anywhere within the limits, the arm may start there, and a
+    joint held where it is is no new target."""
+    lo, hi = m.JOINT_LIMITS[joint]
+    assert CONTRACT.target_limits[joint] == pytest.approx(
+        (lo + MARGIN_RAD[joint], hi - MARGIN_RAD[joint]), abs=1e-9)
+    near = dict(REST, **{joint: hi - 0.1 * MARGIN_RAD[joint]})  # the arm inside the margin
+    margin = MARGIN_RAD[joint]
+    cases = ((hi - 1.01 * margin, True), (hi - 0.99 * margin, False), (near[joint], True))
+    for target, ok in cases:
+        goal = ac.TrajectoryGoal([joint], [0.0, 3.0], [[near[joint]], [target]])
+        assert ac.validate_trajectory(goal, near, CONTRACT).ok == ok, target
+    wide = ac.ArmContract(limit_margin_enc=0)
+    goal = ac.TrajectoryGoal([joint], [3.0], [[hi]])
+    assert ac.validate_trajectory(goal, near, wide).ok
+    assert not ac.validate_trajectory(goal, near, CONTRACT).ok

@@ -10,7 +10,8 @@ from __future__ import annotations
 from katana_common.params import Param
 from katana_description import models
 
-from katana_driver.core.encoders import refusal_of, variant_of
+from katana_driver.core.encoders import DEFAULT_LIMIT_MARGIN_ENC, refusal_of, variant_of
+from katana_driver.core.protocol import KNI_MAX_ACCELERATION, KNI_MAX_VELOCITY
 
 PARAMS = (
     Param("model", models.DEFAULT_MODEL, "arm model TYPE_VARIANT (the angled 6M90A/B grippers "
@@ -26,6 +27,18 @@ PARAMS = (
     Param("retries", 3, "re-sends of an idempotent request on a lost reply", low=0, high=10),
     Param("reconnect_period", 1.0, "s between reconnections", low=0.1, high=60.0, live=True),
     Param("collision_detection", True, "let the controller stop the arm on a collision"),
+    Param("limit_margin_encoders", DEFAULT_LIMIT_MARGIN_ENC, "encoders that targets, "
+          "trajectories and the calibration back-off stay inside every motor's encoder range (a "
+          "real controller is reported to refuse targets within about 200 of its limits); goals "
+          "closer to a limit are refused", low=0, high=2000),
+    Param("speed_limits", [KNI_MAX_VELOCITY] * 6, "speed limit of motors 1..6 sent at start-up "
+          "(S sub-command 3), encoders per 10 ms; the planner keeps to it and to the joint speed "
+          "limits. Default 180: KNI_MAX_VELOCITY of the ROS 1 katana node (katana_constants.h)",
+          low=1, high=KNI_MAX_VELOCITY, length=6),
+    Param("acceleration_limits", [KNI_MAX_ACCELERATION] * 6, "acceleration limit of motors "
+          "1..6 sent at start-up (S sub-command 4), encoders per (10 ms)^2; trajectories that "
+          "need more are refused. Default 2: KNI_MAX_ACCELERATION of the ROS 1 katana node "
+          "(katana_constants.h: 'acceleration limit = 1 or 2')", low=1, high=2, length=6),
     Param("max_trajectory_s", 60.0, "longest trajectory accepted, s", low=1.0, high=600.0,
           live=True),
     Param("goal_tolerance", 0.01, "default final position tolerance, rad", low=0.001, high=0.5,

@@ -6,7 +6,15 @@ refused with "Axis not calibrated"), status flags and collision injection. For f
 counts duplicated spline segments (an H row equal to the previous one since the last flush,
 other than a row that only holds every motor still: a segment the driver sent twice) and
 records the largest per-10 ms joint step as a fraction of the joint's speed limit
-(``max_speed_ratio``: above 1 the arm jumped).
+(``max_speed_ratio``: above 1 the arm jumped), the largest per-tick speed change of a motor
+playing splines (``max_spline_accel``, encoders per tick squared) and the calibration commands
+received (``calibrations``).
+
+Knobs for what no source settles (docs/hardware.md, first power-on checklist): the status of a
+moving motor (``moving_status``: 24, or KNI's 16), the move-buffer size (``queue_size``; a full
+buffer reports 152), targets refused near the limits (``refuse_within`` encoders, answered with
+0xC0 or, with ``refuse_with_failure``, with a ``C`` reply whose success byte is 0) and statuses
+forced for tests (``status_override``).
 
 Model time is wall time times ``time_scale`` (tests run it faster than real time).
 """
@@ -27,6 +35,9 @@ from katana_driver.core.splines import cubic_speed_max, evaluate
 
 BANNER = "KATANA EMULATOR: a protocol-level test double, NOT a robot arm"
 QUEUE_SIZE = 16  # move buffer per motor (the real size is unconfirmed; docs/KATANA.md assumes 16)
+#: the master version answered to B: KNI accepts a 400/450 only up to 3 and a 300 only from 3
+#: (kmlBase.h K400_OLD_PROTOCOL_THRESHOLD = 3); what a real controller answers is unconfirmed
+MASTER_VERSION = (3, 0)
 ENCODER_OFFSETS = (31000, -31000, -31000, 31000, 31000, 31000)
 
 
@@ -55,6 +66,7 @@ class _Motor:
     pending: list = field(default_factory=list)  # queued with G, waiting for G+128
     running: bool = False
     seg_start: float = 0.0  # tick at which queue[0] started
+    run_start: float = 0.0  # tick at which the queue last started playing
     calib_end: float = 0.0
     last_row_reset: bool = False  # motion stopped since the last H row (duplicate detector)
 
@@ -91,6 +103,13 @@ class KatanaModel:
         self.duplicated_segments = 0
         self.max_speed_ratio = 0.0  # largest per-tick step / the joint's speed limit
         self.max_speed_motor = 0  # the motor (1..6) that made it
+        self.max_spline_accel = 0.0  # largest per-tick speed change while playing splines
+        self.calibrations = 0  # calibration commands (C flag 4) received
+        self.moving_status = p.STATUS_MOVING  # what a moving motor reports (KNI: 16 or 24)
+        self.queue_size = QUEUE_SIZE
+        self.refuse_within = 0  # refuse move and spline targets this close to the range's ends
+        self.refuse_with_failure = False  # ... with a C reply's success byte 0, not with 0xC0
+        self.status_override: dict[int, int] = {}  # motor -> status reported regardless
         self._last_row: tuple | None = None
         self._clock = clock
         self._t0 = clock()
@@ -130,7 +149,7 @@ class KatanaModel:
         for m in self.motors:
             if m.status == p.STATUS_CALIBRATING or (m.running and m.queue):
                 return False
-            if m.status in (p.STATUS_MOVING, p.STATUS_HOLDING) and (
+            if (m.status in p.MOVING_STATUSES or m.status == p.STATUS_HOLDING) and (
                 abs(m.target - m.pos) > 1e-9 or m.vel != 0.0
             ):
                 return False
@@ -142,14 +161,20 @@ class KatanaModel:
             self.advance()
             self.duplicated_segments = 0
             self.max_speed_ratio = 0.0
+            self.max_spline_accel = 0.0
 
     def _step(self, m: _Motor, tick: float) -> None:
         before, was_calibrating = m.pos, m.status == p.STATUS_CALIBRATING
+        # playing on from the previous tick (not the first tick after a start: after a queue
+        # that ran dry, the driver's lag, not its splines, makes that step)
+        vel_before, playing = m.vel, m.running and bool(m.queue) and tick > m.run_start + 1
         self._move(m, tick)
         if m.calibrated and not was_calibrating:  # the calibration run sets, not moves, encoders
             ratio = abs(m.pos - before) / max(m.nominal_speed, 1e-9)
             if ratio > self.max_speed_ratio:
                 self.max_speed_ratio, self.max_speed_motor = ratio, m.index
+            if playing and m.running:  # a spline played on from the previous tick
+                self.max_spline_accel = max(self.max_spline_accel, abs(m.vel - vel_before))
 
     def _move(self, m: _Motor, tick: float) -> None:
         if m.status in (p.STATUS_OFF, p.STATUS_COLLISION, p.STATUS_INVALID):
@@ -160,7 +185,7 @@ class KatanaModel:
                 self._calibrated(m)
             return
         if m.running and m.queue:
-            seg = m.queue[0]
+            seg, prev = m.queue[0], m.pos
             local = tick - m.seg_start
             while m.queue and local >= m.queue[0].duration:
                 seg = m.queue.popleft()
@@ -169,8 +194,8 @@ class KatanaModel:
                 m.pos = float(seg.target)
             if m.queue:
                 new = evaluate(m.queue[0], local)
-                m.vel, m.pos = new - m.pos, new
-                m.status = p.STATUS_MOVING
+                m.vel, m.pos = new - prev, new  # the step of this tick, across a segment's end too
+                m.status = self._playing_status(m)
             else:
                 m.running, m.vel, m.target = False, 0.0, m.pos
                 m.status = p.STATUS_SPLINE_DONE
@@ -181,7 +206,7 @@ class KatanaModel:
         err = m.target - m.pos
         if abs(err) < 0.5 and abs(m.vel) <= m.accel_limit:
             m.pos, m.vel = m.target, 0.0
-            if m.status == p.STATUS_MOVING:
+            if m.status in p.MOVING_STATUSES:
                 m.status = p.STATUS_HOLDING
             return
         want = math.copysign(min(m.speed_limit, math.sqrt(2.0 * m.accel_limit * abs(err))), err)
@@ -230,7 +255,14 @@ class KatanaModel:
     def statuses(self) -> list[int]:
         with self._lock:
             self.advance()
-            return [m.status for m in self.motors]
+            return [self._reported(m) for m in self.motors]
+
+    def _reported(self, m: _Motor) -> int:
+        return self.status_override.get(m.index, m.status)
+
+    def _playing_status(self, m: _Motor) -> int:
+        """A motor playing splines: 152 with its move buffer full, else the moving status."""
+        return p.STATUS_BUFFER_FULL if len(m.queue) >= self.queue_size else self.moving_status
 
     # ------------------------------------------------------------------ commands
     def handle(self, payload: bytes) -> bytes:
@@ -263,7 +295,7 @@ class KatanaModel:
         if cmd == ord("Z"):
             return b"z"
         if cmd == ord("B"):
-            return bytes((ord("b"), 3 if self.katana_type == 300 else 4, 0))
+            return bytes((ord("b"), *MASTER_VERSION))
         if cmd == ord("Y"):
             text = f"{BANNER} (Katana {self.katana_type} {self.variant})".encode()
             return b"y" + text[:82].ljust(83, b"\x00")
@@ -271,13 +303,16 @@ class KatanaModel:
             if pl[1] == 3:
                 return b"n" + struct.pack(">6h", *(int(round(m.pos)) for m in self.motors))
             if pl[1] == 1:
-                return b"n" + bytes(m.status for m in self.motors) + bytes(6)
+                return b"n" + bytes(self._reported(m) for m in self.motors) + bytes(6)
             raise Refusal(-1, 0, f"Unknown N sub-command {pl[1]}")
         if cmd == ord("D"):
             m = self._motor(pl[1])
-            pwm = int(max(-100, min(100, round(100.0 * m.vel / max(m.speed_limit, 1.0)))))
+            # PWM: one unsigned byte, as KNI reads it; here the duty's magnitude, 0..100 (what
+            # the real byte holds is unconfirmed)
+            pwm = int(min(100, round(100.0 * abs(m.vel) / max(m.speed_limit, 1.0))))
             vel = int(max(p.INT16_MIN, min(p.INT16_MAX, round(m.vel))))
-            return b"d" + struct.pack(">BBhhb", m.index, m.status, int(round(m.pos)), vel, pwm)
+            return b"d" + struct.pack(">BBhhB", m.index, self._reported(m),
+                                      int(round(m.pos)), vel, pwm)
         if cmd == ord("C"):
             return self._motor_command(pl)
         if cmd == ord("S"):
@@ -313,6 +348,8 @@ class KatanaModel:
                 m.queue.append(seg)
                 if activity != p.ACTIVITY_QUEUE:
                     self._start_queue(m, self._tick)
+                if m.running:
+                    m.status = self._playing_status(m)
             return bytes((ord("h"), 1, activity))
         if cmd == ord("A"):
             self.collision_detection = bool(pl[2])
@@ -324,16 +361,24 @@ class KatanaModel:
     def _start_queue(self, m: _Motor, now: float) -> None:
         if not m.running:
             m.running = True
-            m.seg_start = now
-            m.status = p.STATUS_MOVING
+            m.seg_start = m.run_start = now
+            m.status = self._playing_status(m)
+
+    def _near_limit(self, m: _Motor, target: float) -> bool:
+        """A target ``refuse_within`` encoders or closer to the ends of the motor's range."""
+        return self.refuse_within > 0 and not (
+            m.lo + self.refuse_within <= target <= m.hi - self.refuse_within
+        )
 
     def _check_spline(self, m: _Motor, seg: p.SplineSegment, queued: int) -> None:
         if not m.calibrated:
             raise Refusal(-3, m.index, "Axis not calibrated")
         if m.status == p.STATUS_COLLISION:
             raise Refusal(-10, m.index, "Axis stopped by a collision: hold it first")
-        if queued >= QUEUE_SIZE:
+        if queued >= self.queue_size:
             raise Refusal(-6, m.index, "Move buffer full")
+        if self._near_limit(m, seg.target) and seg.target != seg.p0:
+            raise Refusal(-11, m.index, "Target too close to the limit")
         if seg.duration <= 0:
             raise Refusal(-7, m.index, "Spline duration must be positive")
         c = seg.coefficients()
@@ -356,6 +401,7 @@ class KatanaModel:
                 m.stop_motion()
                 m.status = p.STATUS_OFF
         elif flag == p.FLAG_CALIBRATE:
+            self.calibrations += 1
             for m in targets:
                 m.stop_motion()
                 m.calibrated = False
@@ -364,7 +410,7 @@ class KatanaModel:
         elif flag == p.FLAG_FLUSH:
             for m in targets:
                 m.stop_motion()
-                if m.status in (p.STATUS_MOVING, p.STATUS_SPLINE_DONE):
+                if m.status in p.MOVING_STATUSES or m.status == p.STATUS_SPLINE_DONE:
                     m.status = p.STATUS_HOLDING
         elif flag in (p.FLAG_HOLD, p.FLAG_MOVE):
             if ident == p.ALL_MOTORS:
@@ -375,11 +421,15 @@ class KatanaModel:
                     raise Refusal(-3, m.index, "Axis not calibrated")
                 if m.status == p.STATUS_COLLISION:
                     raise Refusal(-10, m.index, "Axis stopped by a collision: hold it first")
+                if self._near_limit(m, pos):
+                    if self.refuse_with_failure:
+                        return bytes((ord("c"), 0, ident))
+                    raise Refusal(-11, m.index, "Target too close to the limit")
             m.stop_motion()
             m.target = float(max(m.lo, min(m.hi, pos))) if m.calibrated else float(pos)
             if not m.calibrated:
                 m.pos = m.target = m.pos  # uncalibrated hold: stay (the encoders mean nothing)
-            m.status = p.STATUS_MOVING if flag == p.FLAG_MOVE else p.STATUS_HOLDING
+            m.status = self.moving_status if flag == p.FLAG_MOVE else p.STATUS_HOLDING
         else:
             raise Refusal(-5, ident, f"Unknown motor flag {flag}")
         return bytes((ord("c"), 1, ident))

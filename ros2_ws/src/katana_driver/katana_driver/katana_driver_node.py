@@ -58,6 +58,8 @@ class KatanaDriverNode(Node):
             reconnect_period=params["reconnect_period"],
             calibration_timeout=params["calibration_timeout"],
             on_state=self._publish_state, log=self._log,
+            limit_margin=params["limit_margin_encoders"], speed_limits=params["speed_limits"],
+            acceleration_limits=params["acceleration_limits"],
         )
         params.on_change(self._apply)
         self._flags = threading.Lock()  # one goal (arm or gripper) at a time
@@ -87,7 +89,9 @@ class KatanaDriverNode(Node):
             default_goal_tolerance_rad=p["goal_tolerance"],
             default_goal_time_tolerance_s=p["goal_time_tolerance"],
             gripper_tolerance_rad=p["gripper_tolerance"],
-            gripper_stall_time_s=p["gripper_stall_time"])
+            gripper_stall_time_s=p["gripper_stall_time"],
+            limit_margin_enc=p["limit_margin_encoders"],
+            acceleration_limits=tuple(float(a) for a in p["acceleration_limits"][:5]))
 
     def _apply(self, changed: dict) -> None:
         self.contract = self._contract()

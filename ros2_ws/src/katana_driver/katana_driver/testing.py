@@ -30,17 +30,31 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectoryPoint
 
-from katana_driver.core.encoders import ARM_JOINTS
+from katana_driver.core.encoders import ARM_JOINTS, EncoderModel
+from katana_driver.core.protocol import KNI_MAX_ACCELERATION, TICK_S
 from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
 from katana_driver.katana_driver_node import KatanaDriverNode
 
 _ids = itertools.count()
-#: two poses 0.5-1.3 rad apart on every arm joint; 1 s from one to the other (at rest at both)
-#: takes the wrist roll to 0.88 of its speed limit, so a segment played twice or out of turn
-#: shows as a speed ratio far above 1
+#: two poses 0.5-1.3 rad apart on every arm joint; 2 s from one to the other (at rest at both)
+#: takes the wrist roll to 0.9 of its acceleration limit and 0.44 of its speed limit: a segment
+#: played twice or out of turn jumps back a whole segment, a speed ratio far above 1
 POSE_A = [-1.2, 1.3, -1.2, -0.6, -1.0]
 POSE_B = [-2.4, 1.8, -1.8, -1.4, -2.3]
-LEG_S = 1.0
+LEG_S = 2.0
+_MODEL = EncoderModel()
+
+
+def seconds_between(a: list[float], b: list[float], accel_fraction: float = 0.8) -> float:
+    """A duration for a rest-to-rest move from pose ``a`` to ``b`` that keeps every joint
+    within ``accel_fraction`` of KNI's acceleration limit and 80 % of its speed limit (a cubic
+    from rest to rest peaks at 6 d / T^2 and 1.5 d / T)."""
+    ticks = 100.0
+    for j in range(5):
+        d = abs(_MODEL.angle_to_encoder(j + 1, a[j]) - _MODEL.angle_to_encoder(j + 1, b[j]))
+        ticks = max(ticks, math.sqrt(6.0 * d / (KNI_MAX_ACCELERATION * accel_fraction)),
+                    1.5 * d / (0.8 * _MODEL.speed_limit_enc(j + 1)))
+    return math.ceil(ticks) * TICK_S
 
 
 def _knobs(**kw) -> Callable[[KatanaEmulator], None]:
@@ -190,7 +204,9 @@ class FaultBench:
         apply, mid = FAULTS[name]
         if not self.wait_ready():
             return CaseResult(0, 0.0, "driver not ready", "")
-        status, text = self.run_goal(trajectory(POSE_A, 1.5))  # a known start
+        state = self.driver.worker.state
+        here = list(state.positions[:5]) if state is not None else POSE_B
+        status, text = self.run_goal(trajectory(POSE_A, seconds_between(here, POSE_A)))
         self.emulator.model.reset_counters()
         self.emulator.faults = Faults(seed=3)
         if name == "emulator_restart":
@@ -214,8 +230,8 @@ class FaultBench:
         back = [q for q in state.positions[:5]] if state is not None else POSE_A
         to_a = max(abs(a - b) for a, b in zip(back, POSE_A, strict=True))
         to_b = max(abs(a - b) for a, b in zip(back, POSE_B, strict=True))
-        target, far = (POSE_A, to_a) if to_a > to_b else (POSE_B, to_b)  # a goal that moves
-        status, text = self.run_goal(trajectory(target, max(1.5, 1.5 * far / 0.9)))
+        target = POSE_A if to_a > to_b else POSE_B  # a goal that moves
+        status, text = self.run_goal(trajectory(target, seconds_between(back, target)))
         next_goal = "succeeded" if status == GoalStatus.STATUS_SUCCEEDED else f"failed: {text}"
         dup2, ratio2 = self.counters()
         return CaseResult(max(dup, dup2), max(ratio, ratio2), outcome, next_goal)

@@ -31,7 +31,9 @@ def calibrated_client(make_emulator, **kwargs):
 def test_identification_says_emulator(make_emulator):
     client = tcp_client(make_emulator())
     assert client.echo()
-    assert client.master_version() == (4, 0)
+    # KNI drives a controller as a Katana 400/450 only when this is 3 or less (kmlBase.h:
+    # K400_OLD_PROTOCOL_THRESHOLD 3, CKatBase::checkKatanaType)
+    assert client.master_version()[0] <= 3
     assert BANNER in client.identification()
 
 
@@ -229,3 +231,27 @@ def test_a_segment_sent_twice_is_counted_and_shows_as_a_jump(make_emulator):
     client.send_spline_all([hold_segment(e, 20) for e in client.read_positions()],
                            p.ACTIVITY_LAST)
     assert emulator.model.duplicated_segments == 1
+
+
+def test_a_failure_reply_to_c_raises_command_failed(make_emulator):
+    """A C reply whose success byte (its second byte, KNI's `if (!buf[1]) throw`) is 0 raises
+    CommandFailed, a ControllerError: whatever catches refusals catches it too."""
+    emulator, client = calibrated_client(make_emulator)
+    emulator.model.refuse_within, emulator.model.refuse_with_failure = 300, True
+    with pytest.raises(p.CommandFailed, match="'C' for motor 1 with failure") as info:
+        client.move_motor(1, 30900)  # 100 encoders from the end of motor 1's range
+    assert isinstance(info.value, p.ControllerError)
+    client.move_motor(1, 20000)  # far from the limits: taken
+    assert client.read_status()[0] == p.STATUS_MOVING
+
+
+def test_a_full_move_buffer_reports_152(make_emulator):
+    """KNI's MSF_LINMOV, 152: "moving poly, polymb full"."""
+    emulator, client = calibrated_client(make_emulator)
+    emulator.model.queue_size = 2
+    segs = [hold_segment(e, 50) for e in client.read_positions()]
+    client.send_spline_all(segs, p.ACTIVITY_START)
+    assert client.read_status()[0] == p.STATUS_MOVING
+    client.send_spline_all(segs, p.ACTIVITY_START)
+    assert client.read_status()[:5] == [152] * 5
+    assert client.read_motor(1).status == 152

@@ -7,8 +7,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from katana_description import arm_contract as ac
 from katana_description import models
-from katana_driver.core.arm import CALIBRATION_BACKOFF_RAD
+from katana_driver.core.arm import CALIBRATION_BACKOFF_SLACK_ENC
 from katana_driver.core.encoders import ARM_JOINTS, VARIANTS, EncoderModel, variant_of
+from katana_driver.core.splines import plan_trajectory
 
 # Joint limits of the URDF (docs/KATANA.md table), motors 1..5.
 URDF_LIMITS = [
@@ -82,20 +83,30 @@ def test_unknown_variant_is_refused():
 def test_the_calibrated_pose_is_a_valid_start_for_every_modelled_arm(model_name):
     """The cause of "pan would be -3.026 rad, outside [-3.026, 2.891]" after calibration: the
     stop converts to -3.0255282636 rad, 2.6e-7 below katana_description's rounded limit
-    -3.025528. Backed off by CALIBRATION_BACKOFF_RAD, the pose is inside every limit of the
-    model and the arm contract accepts a goal from it (to the park pose)."""
+    -3.025528. The back-off after calibration puts every motor at least 200 encoders (the
+    margin a real controller is reported to keep) inside its stop, the +-31000 of KNI's
+    configuration (encoderOffset), so the pose is inside every limit of the model and the arm
+    contract and the planner accept a goal from it (to the park pose)."""
     _, variant = variant_of(model_name)
     enc = EncoderModel(variant)
     stops = enc.calibration_pose(0.0)
     limits = models.get_model(model_name).limits
     assert stops[0] < limits[models.ARM_JOINTS[0]][0]  # the stop itself: a hair outside
-    pose = enc.calibration_pose(CALIBRATION_BACKOFF_RAD)
+    backed_off = enc.backed_off_stops(200 + CALIBRATION_BACKOFF_SLACK_ENC)
+    kni_stops = [31000, -31000, -31000, 31000, 31000]  # KNI cfg encoderOffset, motors 1..5
+    for motor, (e, stop) in enumerate(zip(backed_off, kni_stops, strict=True), start=1):
+        lo, hi = enc.encoder_range(motor)
+        assert stop in (lo, hi)
+        assert 200 <= abs(e - stop) <= 200 + 20 and lo + 200 <= e <= hi - 200
+    pose = [enc.encoder_to_angle(m, e) for m, e in enumerate(backed_off, start=1)]
     for name, q in zip(models.ARM_JOINTS, pose, strict=True):
         lo, hi = limits[name]
         assert lo + 0.009 < q < hi - 0.009, name
     current = dict(zip(models.ARM_JOINTS, pose, strict=True))
     goal = ac.TrajectoryGoal(list(models.ARM_JOINTS), [4.0], [list(models.PARK_POSE)])
     assert ac.validate_trajectory(goal, current, ac.ArmContract(model=model_name)) == ac.OK
+    plan = plan_trajectory(enc, [*backed_off, 20000], [4.0], [list(models.PARK_POSE)])
+    assert plan.final_angles() == pytest.approx(list(models.PARK_POSE), abs=1e-4)
 
 
 def test_driver_speeds_and_names_are_katana_descriptions():

@@ -1,6 +1,7 @@
 """core.motion's planning rule (ROS-free): merged knots must not bulge past a joint limit."""
 
 import json
+from types import SimpleNamespace
 
 import pytest
 from katana_description import arm_contract as ac
@@ -41,14 +42,30 @@ def _goal():
 
 
 def test_knots_are_kept_where_merging_them_would_overshoot_a_limit():
+    """The knot-keeping rule itself, without the limit margin and with accelerations far above
+    KNI's (the recorded goal breaks both; see the next test)."""
     goal = _goal()
     encoders = ENCODERS
+    loose = {"limit_margin": 0, "accel_limits": [100] * 5}
     with pytest.raises(TrajectoryError, match="overshoot"):
         plan_trajectory(MODEL, encoders, goal.times_s, goal.positions, goal.velocities,
-                        speed_scale=1.02)
-    plan = _plan(MODEL, encoders, goal, ac.ArmContract())
+                        speed_scale=1.02, **loose)
+    worker = SimpleNamespace(limit_margin=0, acceleration_limits=[100] * 6,
+                             speed_limits=[180] * 6)
+    plan = _plan(MODEL, encoders, goal, ac.ArmContract(), worker)
     lo, hi = MODEL.encoder_range(4)
     for row in plan.segments:
         low, high = cubic_extremes(row[3].coefficients(), row[3].duration)
-        assert lo - 20 <= low and high <= hi + 20
+        assert lo <= low and high <= hi
     assert json.dumps(plan.final_angles())  # finite, plain numbers
+
+
+def test_the_recorded_retreat_is_refused_for_the_limit_margin():
+    """The same goal drives the wrist lift to 0.8 mrad (6 encoders) of its limit: a real
+    controller is reported to refuse targets within about 200 encoders of a limit, so the
+    driver refuses it, naming the joint, the distance and the parameter."""
+    goal = _goal()
+    with pytest.raises(TrajectoryError, match=(
+            r"katana_motor4_lift_joint = 1\.8752 rad is [0-9] encoders from the end of its "
+            r"range; targets stay 200 encoders inside it \(limit_margin_encoders\)")):
+        _plan(MODEL, ENCODERS, goal, ac.ArmContract())

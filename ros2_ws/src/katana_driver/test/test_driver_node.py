@@ -17,8 +17,9 @@ from katana_common.messages import duration_msg
 from katana_common.params import ParameterError
 from katana_common.testing import call_service, spin_until
 from katana_driver.core import protocol as p
-from katana_driver.core.encoders import ALL_JOINTS, ARM_JOINTS
+from katana_driver.core.encoders import ALL_JOINTS, ARM_JOINTS, EncoderModel
 from katana_driver.katana_driver_node import KatanaDriverNode
+from katana_driver.testing import seconds_between
 from katana_interfaces.srv import ResetWorld, SetMotors
 from rcl_interfaces.srv import SetParameters
 from rclpy.action.client import GoalStatus
@@ -132,8 +133,10 @@ def test_joint_states_carry_seven_joints(graph):
     msg = g.states[-1]
     assert list(msg.name) == list(ALL_JOINTS)
     assert msg.position[5] == msg.position[6]
-    # M1 backed off its calibration stop into the limits
-    assert msg.position[0] == pytest.approx(-3.025528 + 0.01, abs=1e-4)
+    # M1 backed off its calibration stop (-3.025528 rad) by 200 encoders and a little more
+    # (51200 encoders per turn): the margin a real controller is reported to keep
+    assert -3.025528 + 200 * 2 * math.pi / 51200 <= msg.position[0]
+    assert msg.position[0] <= -3.025528 + 230 * 2 * math.pi / 51200
 
 
 def test_follows_a_trajectory_in_any_joint_order(graph):
@@ -141,7 +144,7 @@ def test_follows_a_trajectory_in_any_joint_order(graph):
     g.ready()
     names = list(reversed(ARM_JOINTS))
     target = [-2.5, 1.8, -1.8, -1.5, -2.5]
-    goal = trajectory_goal([(1.2, list(reversed(target)))], names)
+    goal = trajectory_goal([(1.5, list(reversed(target)))], names)
     feedback_seen = []
     sent = g.arm.send_goal_async(goal, feedback_callback=feedback_seen.append)
     assert g.spin_until(sent.done)
@@ -161,6 +164,14 @@ def test_follows_a_trajectory_in_any_joint_order(graph):
         ([(0.3, [0.0, 1.8, -1.8, -1.5, -2.5])], ARM_JOINTS, -1, "rad/s"),
         ([(1.0, [0.0] * 5)], ("a", "b", "c", "d", "e"), -2, "unknown or non-arm joints"),
         ([], ARM_JOINTS, -1, "no points"),
+        # 45 encoders from motor 1's stop, inside the joint limits: within the margin (the
+        # arm contract refuses it, with the driver's limit_margin_encoders)
+        ([(2.0, [-3.02, 1.8, -1.8, -1.5, -2.5])], ARM_JOINTS, -1,
+         "within 200 encoders of its limits; targets stay in"),
+        # 0.6 rad of motor 2 in 1.2 s, under its speed limit: 3.8 encoders per (10 ms)^2 at
+        # the start (6 d / T^2), above KNI's 2 (the driver's acceleration_limits)
+        ([(1.2, [-2.5, 1.55, -1.8, -1.5, -2.5])], ARM_JOINTS, -1,
+         "above its acceleration limit 1.323 rad/s^2"),
     ],
 )
 def test_refuses_goals_it_cannot_run(graph, points, names, code, text):
@@ -339,7 +350,7 @@ def test_non_finite_tolerances_are_refused(graph, field, value):
 def test_gripper_goals_are_refused_while_the_arm_moves(graph):
     g = graph()
     g.ready()
-    sent = g.arm.send_goal_async(trajectory_goal([(2.0, [-1.5, 1.2, -1.0, -0.5, -1.5])]))
+    sent = g.arm.send_goal_async(trajectory_goal([(2.5, [-1.5, 1.2, -1.0, -0.5, -1.5])]))
     assert g.spin_until(sent.done)
     arm_result = sent.result().get_result_async()
     assert g.spin_until(lambda: g.driver.worker.state.status[0] == p.STATUS_MOVING)
@@ -420,7 +431,10 @@ def test_arbitrary_goals_are_answered_and_the_node_keeps_serving(graph):
 
     arm_goal()
     gripper()
-    res = g.run_goal(g.arm, trajectory_goal([(1.2, [-2.5, 1.8, -1.8, -1.5, -2.5])]))
+    assert _set(g, "max_trajectory_s", 10.0).successful
+    target = [-2.5, 1.8, -1.8, -1.5, -2.5]
+    seconds = seconds_between(list(g.driver.worker.state.positions[:5]), target)
+    res = g.run_goal(g.arm, trajectory_goal([(seconds, target)]))
     assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.error_string
 
 
@@ -442,3 +456,52 @@ def test_any_service_request_is_answered(graph):
         assert reply.success and ("on" if enable else "off") in reply.message
     res = g.run_goal(g.arm, trajectory_goal([(1.5, [-2.5, 1.8, -1.8, -1.5, -2.5])]))
     assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.error_string
+
+
+def _frozen(g):
+    """Every emulated motor holds (its own state, not what a test makes it report)."""
+    return [m.status for m in g.emulator.model.motors] == [p.STATUS_HOLDING] * 6
+
+
+def test_a_move_buffer_full_for_good_ends_the_goal_and_freezes_the_arm(graph):
+    """The driver waits while a motor reports 152 (move buffer full), as KNI does, but not
+    forever: after 3 s the goal is aborted with the reason and the arm frozen."""
+    g = graph()
+    g.ready()
+    g.emulator.model.status_override = {1: p.STATUS_BUFFER_FULL}
+    res = g.run_goal(g.arm, trajectory_goal([(4.0, [-2.0, 1.5, -1.5, -1.0, -2.0])]))
+    assert res.status == GoalStatus.STATUS_ABORTED
+    assert "move buffer stayed full (status 152 on motors [1])" in res.result.error_string
+    assert g.spin_until(lambda: _frozen(g))
+    g.emulator.model.status_override = {}
+    res = g.run_goal(g.arm, trajectory_goal([(4.0, [-2.0, 1.5, -1.5, -1.0, -2.0])]))
+    assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.error_string
+
+
+def test_a_segment_the_controller_refuses_ends_the_goal_and_freezes_the_arm(graph, make_emulator):
+    """Without the driver's margin, a goal 100 encoders from motor 1's stop goes out; the
+    controller refuses the segment that targets it: the goal is aborted with the controller's
+    reason and the arm frozen, and the driver serves the next goal."""
+    g = graph(make_emulator(calibrated=True), limit_margin_encoders=0)
+    assert g.spin_until(lambda: g.driver.worker.ready)
+    assert g.spin_until(g.arm.server_is_ready)
+    g.emulator.model.refuse_within = 200
+    near = EncoderModel().encoder_to_angle(1, 31000 - 100)
+    res = g.run_goal(g.arm, trajectory_goal([(3.0, [near, 1.5, -1.5, -1.0, -2.0])]))
+    assert res.status == GoalStatus.STATUS_ABORTED
+    assert "Target too close to the limit" in res.result.error_string
+    assert g.spin_until(lambda: _frozen(g))
+    res = g.run_goal(g.arm, trajectory_goal([(3.0, [-2.5, 1.5, -1.5, -1.0, -2.0])]))
+    assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.error_string
+
+
+def test_gripper_targets_inside_the_margin_are_refused(graph):
+    """Open is encoder 30770, 230 from the end of the gripper motor's range (31000, KNI's
+    encoder offset): with a 300-encoder margin it is refused and the fingers stay."""
+    g = graph(limit_margin_encoders=300)
+    g.ready()
+    res = g.run_goal(g.gripper, gripper_goal(-0.2))
+    assert res.status == GoalStatus.STATUS_SUCCEEDED
+    res = g.run_goal(g.gripper, gripper_goal(0.30))
+    assert res.status == GoalStatus.STATUS_ABORTED and not res.result.reached_goal
+    assert res.result.position == pytest.approx(-0.2, abs=0.01)

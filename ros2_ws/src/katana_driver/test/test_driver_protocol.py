@@ -157,3 +157,35 @@ def test_motor_command_encoding():
 def test_invalid_arguments_are_refused(make):
     with pytest.raises(ValueError):
         make()
+
+
+def test_moving_statuses_are_knis():
+    """KNI 4.3.0's TMotStsFlg (kmlMotBase.h): MSF_NORMOPSTAT = 16 "moving (polymb not full)",
+    MSF_LINMOV = 152 "moving poly, polymb full"; 24 the Katana4D manual's moving state."""
+    assert p.MOVING_STATUSES == {16, 24, 152}
+    assert (p.STATUS_FOLLOWING, p.STATUS_MOVING, p.STATUS_BUFFER_FULL) == (16, 24, 152)
+    assert not p.MOVING_STATUSES & {0, 4, 8, 40, 88, 128}
+
+
+def test_limit_frames_follow_kni():
+    """CMotBase::setSpeedLimits sends 'S', id, 3, positive, negative, 0 and
+    setAccelerationLimit 'S', id, 4, acceleration, 0, 0 (KNI 4.3.0 kmlMotBase.cpp); the ROS 1
+    node sends 180 and 2 to every motor (katana_constants.h)."""
+    assert p.set_limit(2, p.SUB_SPEED_LIMIT, 180, 180).payload == bytes((0x53, 2, 3, 180, 180, 0))
+    assert p.set_limit(6, p.SUB_ACCEL_LIMIT, 2).payload == bytes((0x53, 6, 4, 2, 0, 0))
+    assert (p.KNI_MAX_VELOCITY, p.KNI_MAX_ACCELERATION) == (180, 2)
+
+
+def test_pwm_is_decoded_unsigned_as_kni_reads_it():
+    """CMotBase::recvPVP: pvp.pwm = buf[7], a `byte` (unsigned char); pos and vel signed."""
+    state = p.decode_motor(bytes.fromhex("64 01 18 FF 38 FF F6 C8"))
+    assert (state.status, state.position, state.velocity, state.pwm) == (24, -200, -10, 200)
+
+
+def test_a_c_reply_with_success_byte_0_is_a_failure():
+    """CMotBase::sendTPS: `if (!buf[1]) throw ParameterWritingException("TPS")`."""
+    p.check_motor_reply(b"c\x01\x03", 3)
+    p.check_motor_reply(None, 3)  # came but unreadable: cannot say
+    with pytest.raises(p.CommandFailed, match="motor 3") as info:
+        p.check_motor_reply(b"c\x00\x03", 3)
+    assert isinstance(info.value, p.ControllerError)

@@ -3,11 +3,13 @@
 import threading
 
 import pytest
+from katana_driver.core import motion
 from katana_driver.core import protocol as p
-from katana_driver.core.arm import CALIBRATION_BACKOFF_RAD, ArmWorker
+from katana_driver.core.arm import ArmWorker
 from katana_driver.core.encoders import EncoderModel
 from katana_driver.core.splines import plan_trajectory
 from katana_driver.core.transport import TcpTransport
+from katana_driver.emulator_model import ENCODER_OFFSETS
 
 pytestmark = pytest.mark.timeout(60)
 MODEL = EncoderModel()
@@ -63,23 +65,34 @@ def worker_for():
 
 @pytest.mark.parametrize("variant", ["6M180", "6M90A", "6M90B"])
 def test_calibrates_when_needed_and_ends_inside_the_limits(make_emulator, worker_for, variant):
-    """After the calibration run (every motor on its stop) the arm backs off its stops, so the
-    pose it reports lies strictly inside the joint limits: at the stop itself the converted angle
-    fell 3e-7 rad outside the rounded limits and every IK or goal check refused to start."""
+    """After the calibration run (every motor on its stop, KNI's encoder offsets +-31000) the
+    arm backs off its stops by at least 200 encoders (the margin a real controller is reported
+    to refuse), not the 75-151 of a 0.01 rad back-off, so the pose it reports lies inside the
+    joint limits by that margin: at the stop itself the converted angle fell 3e-7 rad outside
+    the rounded limits and every IK or goal check refused to start."""
     model = EncoderModel(variant)
-    w = worker_for(make_emulator(variant=variant), model=model)
+    emulator = make_emulator(variant=variant)
+    w = worker_for(emulator, model=model)
     assert w.wait(lambda: w.worker.ready)
-    back_off = model.calibration_pose(CALIBRATION_BACKOFF_RAD)
-    expected = [round(model.angle_to_encoder(i + 1, q)) for i, q in enumerate(back_off)]
-    assert w.wait(lambda: all(abs(a - b) <= 2 for a, b in
-                              zip(w.worker.state.encoders[:5], expected, strict=True)))
+    kni_stops = [31000, -31000, -31000, 31000, 31000]  # KNI cfg encoderOffset, motors 1..5
+    assert list(ENCODER_OFFSETS[:5]) == kni_stops  # where the emulator's calibration ends
+
+    def backed_off():
+        encoders = w.worker.state.encoders[:5]
+        return all(200 <= abs(e - stop) <= 200 + 20
+                   for e, stop in zip(encoders, kni_stops, strict=True))
+
+    assert w.wait(backed_off)
     positions = w.worker.state.positions
     for motor in range(1, 6):
         lower, upper = model.joint_limits(motor)
-        assert lower + 0.005 < positions[motor - 1] < upper - 0.005
+        margin = 200 / abs(model.params(motor).enc_per_rad)
+        assert lower + margin <= positions[motor - 1] <= upper - margin
+    assert emulator.model.calibrations == 1
     assert positions[5] == pytest.approx(0.30, abs=1e-3)  # gripper open, not past it
     texts = " ".join(t for _, t in w.logs)
     assert "Axis not calibrated" in texts and "calibration done" in texts
+    assert "master firmware version 3.0" in texts
     assert any(level == "warn" and "emulator" in t for level, t in w.logs)
 
 
@@ -94,7 +107,7 @@ def test_follows_a_trajectory_within_tolerance(make_emulator, worker_for):
     emulator = make_emulator()
     w = worker_for(emulator)
     assert w.wait(lambda: w.worker.ready)
-    times = [0.8, 1.6]
+    times = [1.6, 3.2]
     goals = [[-2.7, 1.9, -1.9, -1.7, -2.6], [-2.4, 1.7, -1.6, -1.4, -2.3]]
     plan = plan_trajectory(MODEL, w.worker.state.encoders, times, goals)
     with w.worker.busy():
@@ -122,6 +135,9 @@ def test_follows_a_trajectory_within_tolerance(make_emulator, worker_for):
     assert worst < 0.05  # rad: timing offsets of a poll, at speeds under 1 rad/s
     assert w.worker.state.positions[:5] == pytest.approx(goals[-1], abs=2e-3)
     assert emulator.model.statuses()[5] == p.STATUS_SPLINE_DONE  # the gripper held its place
+    # what the emulated motors played kept to KNI's acceleration limit, 2 encoders per tick^2
+    # (the ROS 1 node's KNI_MAX_ACCELERATION), give or take the rounding of p2 and p3
+    assert 0.5 < emulator.model.max_spline_accel <= 2.0 + 0.1, emulator.model.max_spline_accel
 
 
 def test_long_trajectories_are_streamed_through_the_move_buffer(make_emulator, worker_for):
@@ -130,7 +146,7 @@ def test_long_trajectories_are_streamed_through_the_move_buffer(make_emulator, w
     assert w.wait(lambda: w.worker.ready)
     # 12 s of pan motion in 0.5 s segments: 24 segments, more than the 16-slot buffer.
     times = [2.0 * (k + 1) for k in range(6)]
-    goals = [[-3.0 + 0.15 * (k + 1), 2.1, -2.2, -2.0, -2.9] for k in range(6)]
+    goals = [[-3.0 + 0.15 * (k + 1), 2.1, -2.15, -1.95, -2.9] for k in range(6)]
     plan = plan_trajectory(MODEL, w.worker.state.encoders, times, goals)
     assert len(plan.segments) > 16
     emulator.model.time_scale = 1.0
@@ -207,3 +223,119 @@ def test_a_refused_segment_ends_the_stream_not_the_worker(make_emulator, worker_
     polls = w.worker.polls
     assert w.wait(lambda: w.worker.polls > polls + 5)  # the worker still polls
     assert w.worker._thread.is_alive()
+
+
+def test_start_up_sends_knis_speed_and_acceleration_limits(make_emulator, worker_for):
+    """Every motor gets the limits the ROS 1 node sets at start-up through KNI: speed 180
+    encoders per 10 ms (KNI_MAX_VELOCITY) and acceleration 2 per (10 ms)^2
+    (KNI_MAX_ACCELERATION), whatever the controller held before."""
+    emulator = make_emulator(calibrated=True)
+    for m in emulator.model.motors:
+        m.speed_limit, m.accel_limit = 50.0, 4.0
+    w = worker_for(emulator)
+    assert w.wait(lambda: w.worker.ready)
+    assert [m.speed_limit for m in emulator.model.motors] == [180] * 6
+    assert [m.accel_limit for m in emulator.model.motors] == [2] * 6
+
+
+def test_a_reconnection_does_not_calibrate_a_calibrated_arm(make_emulator, worker_for):
+    """The controller keeps its calibration while it stays powered: neither a lost link nor a
+    driver restart calibrates it again. Not even after a collision, whose stopped motors refuse
+    moves as an uncalibrated arm does: the probe held them first (once it took the collision
+    for a lost calibration, and the arm stayed "not calibrated" until a restart recalibrated)."""
+    emulator = make_emulator()  # uncalibrated: the first connection calibrates it
+    w = worker_for(emulator)
+    assert w.wait(lambda: w.worker.ready)
+    assert emulator.model.calibrations == 1
+    assert emulator.model.inject_collision(2)  # set-up turned collision detection on
+    assert w.wait(lambda: bool(w.worker.collision_message))
+    emulator.drop_connection()
+    assert w.wait(lambda: w.worker.link_losses == 1)
+    assert w.wait(lambda: w.worker.ready)
+    assert w.worker.calibrated and emulator.model.calibrations == 1
+    w.worker.stop()
+    emulator.model.inject_collision(3)
+    again = worker_for(emulator)  # a driver restart: a new worker, the same powered controller
+    assert again.wait(lambda: again.worker.ready)
+    assert emulator.model.calibrations == 1
+    assert not any("calibrat" in t for _, t in again.logs)
+
+
+@pytest.mark.parametrize("failure", [False, True], ids=["refused", "failure_reply"])
+def test_a_refused_back_off_ends_set_up_with_the_arm_frozen(make_emulator, worker_for, failure):
+    """A controller that refuses targets within 300 encoders of its limits refuses the back-off
+    after calibration (0xC0, or a C reply with success byte 0): set-up ends, the arm holds
+    where it is, goals are refused with the reason, and the worker keeps polling."""
+    emulator = make_emulator()
+    emulator.model.refuse_within, emulator.model.refuse_with_failure = 300, failure
+    w = worker_for(emulator)
+    assert w.wait(lambda: bool(w.worker.setup_problem) and w.worker.connected)
+    problem = w.worker.setup_problem
+    assert problem.startswith("set-up stopped: controller ")
+    assert ("success byte 0" if failure else "Target too close to the limit") in problem
+    assert not w.worker.ready and motion.ready_problem(w.worker) == problem
+    assert w.wait(lambda: [m.status for m in emulator.model.motors] == [p.STATUS_HOLDING] * 6)
+    polls = w.worker.polls
+    assert w.wait(lambda: w.worker.polls > polls + 5)
+    assert w.worker._thread.is_alive()
+    assert any(level == "error" and "set-up stopped" in t for level, t in w.logs)
+
+
+def test_a_lost_segment_reply_counts_as_taken_while_the_motors_report_16(make_emulator,
+                                                                         worker_for):
+    """KNI's MSF_NORMOPSTAT, 16, is "moving (polymb not full)": a controller reporting it for
+    moving motors, when a segment's reply is lost, says the segment plays (once only 24 counted:
+    the segment was taken for lost and the trajectory aborted)."""
+    emulator = make_emulator(calibrated=True)
+    w = worker_for(emulator)
+    assert w.wait(lambda: w.worker.ready)
+    emulator.model.moving_status = 16
+    client = w.worker.client
+    real_send, calls = client.send_spline_all, []
+
+    def send(segments, activity, exact=False):
+        calls.append(activity)
+        if len(calls) == 3:
+            emulator.faults.silent_next = 1  # the controller takes it; its reply is lost
+        return real_send(segments, activity, exact)
+
+    client.send_spline_all = send
+    goal = [-1.5, 1.2, -1.0, -0.5, -1.5]
+    plan = plan_trajectory(MODEL, w.worker.state.encoders, [3.0], [goal])
+    with w.worker.busy():
+        stream = w.worker.start_trajectory(plan)
+        stream.finished_sending.result(timeout=15)
+    assert any("segment 2 was taken" in t for _, t in w.logs)
+    assert w.wait(lambda: w.worker.state.positions[:5] == pytest.approx(goal, abs=2e-3))
+    assert emulator.model.duplicated_segments == 0
+
+
+def test_a_full_move_buffer_is_waited_out_before_the_next_segment(make_emulator, worker_for):
+    """KNI waits while a motor reports 152 ("moving poly, polymb full") before it sends a
+    segment; so does the driver: a controller whose buffer holds two segments plays a
+    12-segment trajectory to its end, without a refused ("Move buffer full") segment."""
+    emulator = make_emulator(calibrated=True)
+    w = worker_for(emulator)
+    assert w.wait(lambda: w.worker.ready)
+    emulator.model.queue_size = 2
+    goal = [-2.0, 1.5, -1.5, -1.0, -2.0]
+    plan = plan_trajectory(MODEL, w.worker.state.encoders, [6.0], [goal])
+    assert len(plan.segments) == 12
+    with w.worker.busy():
+        stream = w.worker.start_trajectory(plan)
+        stream.finished_sending.result(timeout=20)
+    assert any("move buffer is full (152): waiting" in t for _, t in w.logs)
+    assert w.wait(lambda: w.worker.state.positions[:5] == pytest.approx(goal, abs=2e-3))
+    assert emulator.model.duplicated_segments == 0
+
+
+def test_an_unknown_status_is_logged_once(make_emulator, worker_for):
+    """A status value outside KNI's TMotStsFlg (and 24) is reported, once, for the checklist."""
+    emulator = make_emulator(calibrated=True)
+    w = worker_for(emulator)
+    assert w.wait(lambda: w.worker.ready)
+    emulator.model.status_override = {2: 99}
+    polls = w.worker.polls
+    assert w.wait(lambda: w.worker.polls > polls + 25)  # status is read every 10th poll
+    warnings = [t for level, t in w.logs if level == "warn" and "status 99" in t]
+    assert len(warnings) == 1 and "unknown to the driver" in warnings[0]

@@ -42,6 +42,7 @@ _DEFAULTS = pp.PickPlaceParams()
 #: planner parameters applied live (the next goal plans with them): parameter -> planner field
 LIVE_PLANNER_PARAMS = {"transit_height": "transit_height", "transit_radius": "transit_radius",
                        "speed_fraction": "speed_fraction",
+                       "accel_fraction": "accel_fraction",
                        "min_segment_time_s": "min_segment_time"}
 PARAMS = (
     Param("model", m.DEFAULT_MODEL, "Katana type (read-only: the kinematics are built once).",
@@ -54,6 +55,9 @@ PARAMS = (
           "panning, m.", 0.05, 0.3, live=True),
     Param("speed_fraction", _DEFAULTS.speed_fraction, "Fraction of each joint's speed limit at "
           "a move's peak.", 0.05, 1.0, live=True),
+    Param("accel_fraction", _DEFAULTS.accel_fraction, "Fraction of each joint's acceleration "
+          f"limit at a move's peak (the controller's {m.KNI_MAX_ACCELERATION} encoders per "
+          "(10 ms)^2, which the arm contract and the driver enforce).", 0.05, 1.0, live=True),
     Param("min_segment_time_s", _DEFAULTS.min_segment_time, "Shortest trajectory segment, s. "
           f"The driver merges spline knots closer than {pp.MIN_SEGMENT_TIME_S} s, so shorter "
           "ones can speed the real arm up between points; the simulation runs "

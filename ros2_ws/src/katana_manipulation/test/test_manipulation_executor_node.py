@@ -181,9 +181,9 @@ def test_the_executor_plans_with_its_geometry_and_checks_the_reach_with_it():
         p = executor.planner.p
         assert (p.grasp_offset, p.approach_height) == (0.012, 0.045)
         assert reach_geometry(executor.params) == p.geometry
-        narrow, wide = place_reach(3, 0.03, geometry=p.geometry), place_reach(3, 0.03)
+        narrow, wide = place_reach(2, 0.03, geometry=p.geometry), place_reach(2, 0.03)
         r = 0.5 * (narrow.max_m + wide.max_m)
-        req = pp.PickPlaceRequest(TABLE, 0.0, (0.04, 0.04, 0.03), (r, 0.0, 0.105), 0.0)
+        req = pp.PickPlaceRequest(TABLE, 0.0, (0.04, 0.04, 0.03), (r, 0.0, 0.075), 0.0)
         with pytest.raises(pp.PlanError, match="outside the reach"):
             executor.planner.plan(req, pp.PickPlaceParams().park_pose)
         pp.PickPlacePlanner().plan(req, pp.PickPlaceParams().park_pose)  # the default: in reach

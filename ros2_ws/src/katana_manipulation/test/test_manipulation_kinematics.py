@@ -130,3 +130,25 @@ def test_yaw_choice_prefers_small_wrist_roll_and_respects_period():
     assert abs(q[4]) <= math.pi / 4 + 1e-9
     q2 = KIN.ik_top_down(0.2, 0.0, 0.02, 1.4, yaw_period=math.pi)
     assert abs(wrap(2 * (KIN.gripper_yaw(q2) - 1.4))) < 1e-9
+
+
+def test_solutions_keep_the_drivers_limit_margin():
+    """The inverse kinematics' limits are the joint limits less 200 encoders (docs/KATANA.md's
+    ticks per revolution), a hair more for rounding; the park pose lies inside them."""
+    kin = KatanaKinematics()
+    per_rad = np.array([51200, 94976, 47488, 51200, 51200]) / (2 * math.pi)
+    lower = np.array([m.JOINT_LIMITS[j][0] for j in m.ARM_JOINTS])
+    upper = np.array([m.JOINT_LIMITS[j][1] for j in m.ARM_JOINTS])
+    assert np.all((kin.lower - lower) * per_rad >= 200.0)
+    assert np.all((upper - kin.upper) * per_rad >= 200.0)
+    assert np.all((kin.lower - lower) * per_rad <= 200.5)
+    assert np.all((upper - kin.upper) * per_rad <= 200.5)
+    assert kin.limit_violation(m.PARK_POSE) is None
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        r, a, z = rng.uniform(0.05, 0.35), rng.uniform(-math.pi, math.pi), rng.uniform(0.0, 0.2)
+        try:
+            q = kin.ik_top_down(r * math.cos(a), r * math.sin(a), z, rng.uniform(-3, 3))
+        except Unreachable:
+            continue
+        assert np.all(np.minimum(q - lower, upper - q) * per_rad >= 200.0)

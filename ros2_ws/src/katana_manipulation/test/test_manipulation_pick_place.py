@@ -5,11 +5,18 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from katana_description import models as m
 from katana_manipulation.core import pick_place as pp
+from katana_manipulation.core import planner as planner_module
 from katana_manipulation.core.kinematics import MAX_SPEED, KatanaKinematics
 
 KIN = KatanaKinematics()
+LOWER = np.array([m.JOINT_LIMITS[j][0] for j in m.ARM_JOINTS])
+UPPER = np.array([m.JOINT_LIMITS[j][1] for j in m.ARM_JOINTS])
+TICKS_PER_REV = np.array([51200, 94976, 47488, 51200, 51200])
+#: KNI's acceleration limit, 2 encoders per (10 ms)^2, in rad/s^2
+ACCEL = 2.0 / (TICKS_PER_REV / (2 * math.pi)) / 0.01**2
 
 
 def test_placement_reachable_agrees_with_the_full_plan():
@@ -43,12 +50,19 @@ def test_plan_respects_limits_speeds_and_descends_vertically():
         for q, t, v in zip(seg.points, seg.times, seg.velocities, strict=True):
             q, v = np.array(q), np.array(v)
             assert KIN.limit_violation(q) is None
-            # the cubic Hermite segment's speed, sampled densely, stays within the limits
+            # 200 encoders inside the joint limits (docs/KATANA.md's ticks per revolution)
+            inside = np.minimum(q - LOWER, UPPER - q) * TICKS_PER_REV / (2 * math.pi)
+            assert np.all(inside >= 200.0)
+            # the cubic Hermite segment's speed and acceleration, sampled densely (the latter
+            # by finite differences), stay within the limits
             s = np.linspace(0.0, 1.0, 201)[:, None]
             h = t - t_prev
+            assert round(h / 0.01) == pytest.approx(h / 0.01, abs=1e-6)  # whole 10 ms ticks
             vel = ((6 * s - 6 * s**2) * (q - q_prev) / h + (3 * s**2 - 4 * s + 1) * v_prev
                    + (3 * s**2 - 2 * s) * v)
             assert np.all(np.abs(vel) <= MAX_SPEED * planner.p.speed_fraction + 1e-6)
+            acc = np.diff(vel, axis=0) / (h / 200)
+            assert np.all(np.abs(acc) <= ACCEL * planner.p.accel_fraction * (1 + 1e-3))
             q_prev, t_prev, v_prev = q, t, v
         if seg.phase == "lower" or "descend" in seg.also:  # the last points go straight down
             n = planner.p.descend_points + 2
@@ -149,7 +163,8 @@ class JammedRelease(FakePort):
         return pp.GripResult(True, self.fingers, stalled, not stalled)
 
 
-REQ = pp.PickPlaceRequest((0.2, 0.0, 0.015), 0.0, (0.04, 0.04, 0.03), (0.2, 0.1, 0.045), 0.0)
+#: a place whose column does not lean in, so the release opens by the pregrasp margin only
+REQ = pp.PickPlaceRequest((0.2, 0.0, 0.015), 0.0, (0.04, 0.04, 0.03), (0.18, 0.1, 0.045), 0.0)
 
 
 def test_a_release_that_leaves_the_block_held_stops_the_arm_where_it_is():
@@ -171,3 +186,21 @@ def test_a_release_that_opens_on_the_second_try_goes_on():
     clean = JammedRelease(jammed_opens=0)
     assert pp.execute_pick_place(REQ, clean, pp.PickPlacePlanner()).success
     assert f"grip {m.GRIPPER_OPEN:.3f}" not in clean.calls  # the release opened the first time
+
+
+def test_timing_that_does_not_settle_stops_at_every_point(monkeypatch):
+    """Should stretching the segments not settle, every point becomes a stop and each segment
+    is timed on its own: still within both limits."""
+    planner = pp.PickPlacePlanner()
+    pts = [np.array(m.PARK_POSE) + [0.6 * k, -0.1 * k, 0.1 * k, -0.2 * k, 0.3 * k]
+           for k in (1, 2, 3)]
+    monkeypatch.setattr(planner_module, "STRETCH_STEPS", 0)
+    points, times, vels = planner.timed(m.PARK_POSE, pts)
+    assert np.all(np.array(vels) == 0.0)
+    q = np.vstack([m.PARK_POSE, points])
+    h = np.diff([0.0, *times])
+    speed, accel = planner_module.hermite_peaks(q, np.zeros_like(q), h)
+    d = np.abs(np.diff(q, axis=0))  # from rest to rest: 1.5 d / h and 6 d / h^2
+    assert np.allclose(speed, 1.5 * d / h[:, None]) and np.allclose(accel, 6 * d / h[:, None]**2)
+    assert np.all(speed <= MAX_SPEED * planner.p.speed_fraction + 1e-9)
+    assert np.all(accel <= ACCEL * planner.p.accel_fraction + 1e-9)

@@ -132,7 +132,11 @@ def test_trajectory_reaches_target_within_tolerance_and_speed_limits(world):
     # top-down at (0.2, 0.05, 0.09), yaw 0.3 (KatanaKinematics.ik_top_down)
     target = np.array([0.244979, 1.20566, -1.106029, 1.670427, 0.055021])
     start = np.array([world.joint_positions()[n] for n in m.ARM_JOINTS])
-    dur = 1.5 * float(np.max(np.abs(target - start) / kin_speed()))
+    d = np.abs(target - start)
+    # two cubics from rest to rest, each over half the way in 0.6 dur: they peak at 1.5 times
+    # their mean speed and accelerate at 6 (d / 2) / (0.6 dur)^2 at their ends
+    dur = max(1.5 * float(np.max(d / kin_speed())),
+              float(np.max(np.sqrt(3.0 * d / kin_accel()))) / 0.6)
     h = world.start_trajectory(TrajectoryGoal(list(m.ARM_JOINTS), [dur * 0.6, dur * 1.2],
                                               [list((start + target) / 2), list(target)]))
     vmax = np.zeros(5)
@@ -151,6 +155,12 @@ def kin_speed() -> np.ndarray:
     return np.array([m.JOINT_MAX_SPEED[n] for n in m.ARM_JOINTS])
 
 
+def kin_accel() -> np.ndarray:
+    """KNI's acceleration limit, 2 encoders per (10 ms)^2, in rad/s^2 (docs/KATANA.md's
+    encoder ticks per revolution)."""
+    return 2.0 / (np.array([51200, 94976, 47488, 51200, 51200]) / (2.0 * math.pi)) / 0.01**2
+
+
 @pytest.mark.parametrize(
     ("names", "points", "times", "code", "why"),
     [
@@ -159,6 +169,12 @@ def kin_speed() -> np.ndarray:
         (["katana_r_finger_joint"], [[0.0]], [1.0], ac.INVALID_JOINTS, "non-arm"),
         (["katana_motor2_lift_joint"], [[3.0]], [5.0], ac.INVALID_GOAL, "outside"),
         (["katana_motor1_pan_joint"], [[2.5]], [0.5], ac.INVALID_GOAL, "rad/s"),
+        # inside the joint limit (2.891097), but within 200 encoders of it, as the arm refuses
+        (["katana_motor1_pan_joint"], [[2.88]], [10.0], ac.INVALID_GOAL, "within 200 encoders"),
+        # 0.4 rad of motor 2 from the park pose in 0.9 s: under its speed limit, but 2.96
+        # rad/s^2 at the ends, above its 1.32 (2 encoders per (10 ms)^2)
+        (["katana_motor2_lift_joint"], [[m.PARK_POSE[1] - 0.4]], [0.9], ac.INVALID_GOAL,
+         "acceleration limit"),
         (["katana_motor1_pan_joint"], [[0.0], [0.1]], [2.0, 1.0], ac.INVALID_GOAL, "later than"),
     ],
 )
@@ -187,7 +203,7 @@ def test_gripper_holds_a_block_by_friction_only(world):
                                physicsClientId=world._cid)
     assert info[0] == info[2] == world.arm and info[4] == p.JOINT_GEAR
     up = [0.0, 1.243947, -1.24856, 1.566184, 0.0]  # 6 cm higher
-    h = world.start_trajectory(TrajectoryGoal(list(m.ARM_JOINTS), [1.0], [up]))
+    h = world.start_trajectory(TrajectoryGoal(list(m.ARM_JOINTS), [1.2], [up]))
     while not h.outcome.done:
         world.step(6)
     z = world.block_pose("red")[0][2]

@@ -5,6 +5,15 @@ thread polls positions at ``poll_rate`` (status flags too while something moves,
 every ``status_every`` polls), runs posted jobs between polls, streams trajectory segments
 into the controller's move buffer a little ahead of time (core.streaming), and reconnects
 after a lost link. After a lost link the arm is frozen on reconnection.
+
+Set-up on every connection (after a lost link, once the arm is frozen): the speed and
+acceleration limits of every motor (``S`` 3 and 4, as the ROS 1 katana node sends them at
+start-up), the calibration probe, calibration when needed (then every motor backs off its stop
+to ``limit_margin`` encoders and a little more inside its range), any motor of a calibrated arm
+still within the margin moved inside it, and collision detection. A command the controller
+refuses during set-up (0xC0, or a ``C`` reply with success byte 0) ends the set-up: the arm is
+frozen, the refusal is reported and goals are refused with it (``setup_problem``) until the
+next connection's set-up passes.
 """
 
 from __future__ import annotations
@@ -12,23 +21,27 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from . import protocol as p
 from .client import KatanaClient
-from .encoders import GRIPPER_OPEN_RAD, EncoderModel
+from .encoders import DEFAULT_LIMIT_MARGIN_ENC, GRIPPER_OPEN_RAD, EncoderModel
 from .streaming import Stream, TrajectoryStreaming
 from .transport import LinkDown, NoReply, Transport, TransportError
 
 T = TypeVar("T")
 Log = Callable[[str, str], None]  # (level, message); level: debug, info, warn, error
 
-#: after calibration every arm motor backs off its stop by this much, as the KNI does, so the
-#: arm rests inside the joint limits (at the stop, rounding puts it a hair outside them)
-CALIBRATION_BACKOFF_RAD = 0.01
+#: after calibration every arm motor backs off its stop to this many encoders beyond the limit
+#: margin, so that it rests at least the margin inside its range although the position control
+#: may stop a few encoders short (the back-off accepts 2)
+CALIBRATION_BACKOFF_SLACK_ENC = 10
+#: KNI refuses a controller as a Katana 400/450 when the master version answered to ``B`` is
+#: above this (KNI 4.3.0 kmlBase.h K400_OLD_PROTOCOL_THRESHOLD, CKatBase::checkKatanaType)
+KNI_MAX_450_MASTER_VERSION = 3
 
 
 @dataclass
@@ -62,6 +75,9 @@ class ArmWorker(TrajectoryStreaming):
         status_every: int = 10,
         on_state: Callable[[ArmState], None] | None = None,
         log: Log | None = None,
+        limit_margin: int = DEFAULT_LIMIT_MARGIN_ENC,
+        speed_limits: Sequence[int] = (p.KNI_MAX_VELOCITY,) * 6,
+        acceleration_limits: Sequence[int] = (p.KNI_MAX_ACCELERATION,) * 6,
     ) -> None:
         self.client = KatanaClient(transport)
         self.transport = transport
@@ -74,9 +90,16 @@ class ArmWorker(TrajectoryStreaming):
         self.status_every = max(1, status_every)
         self.on_state = on_state
         self._log_fn = log
+        self.limit_margin = int(limit_margin)
+        self.speed_limits = [int(v) for v in speed_limits]
+        self.acceleration_limits = [int(a) for a in acceleration_limits]
+        if len(self.speed_limits) != 6 or len(self.acceleration_limits) != 6:
+            raise ValueError("speed_limits and acceleration_limits need one value per motor")
         self.connected = False
         self.calibrated = False
+        self.setup_problem = ""  # why the last set-up stopped ('' when it passed)
         self.identification = ""
+        self.master_version: tuple[int, int] | None = None
         self.link_error = "not connected yet"
         self.collision_message = ""
         self.polls = 0
@@ -88,6 +111,7 @@ class ArmWorker(TrajectoryStreaming):
         self._cond = threading.Condition()
         self._state: ArmState | None = None
         self._status = [p.STATUS_INVALID] * 6
+        self._unknown_statuses: set[int] = set()  # status values logged as unknown
         self._status_stamp = 0.0
         self._stream: Stream | None = None
         self._busy = 0
@@ -113,8 +137,9 @@ class ArmWorker(TrajectoryStreaming):
     # ------------------------------------------------------------------ state for callers
     @property
     def ready(self) -> bool:
-        """Connected, calibrated, and a state has been read: goals can run."""
-        return self.connected and self.calibrated and self._state is not None
+        """Connected, set up, calibrated, and a state has been read: goals can run."""
+        return (self.connected and self.calibrated and not self.setup_problem
+                and self._state is not None)
 
     @property
     def state(self) -> ArmState | None:
@@ -214,6 +239,7 @@ class ArmWorker(TrajectoryStreaming):
             self.transport.open()
             self.client.echo()
             self.identification = self.client.identification()
+            self.master_version = self.client.master_version()
         except (TransportError, p.ControllerError) as exc:
             self.transport.close()
             message = str(exc)
@@ -221,31 +247,39 @@ class ArmWorker(TrajectoryStreaming):
                 self._log("error", f"cannot reach the Katana controller: {message}; retrying")
             self.link_error = message
             return False
-        self._log("info", f"connected to {self.transport.name}: '{self.identification}'")
+        version = ".".join(str(v) for v in self.master_version)
+        self._log("info", f"connected to {self.transport.name}: '{self.identification}', "
+                          f"master firmware version {version}")
         if "EMULATOR" in self.identification.upper():
             self._log("warn", "the controller is the katana-emulator, not a real arm")
+        if self.master_version[0] > KNI_MAX_450_MASTER_VERSION:
+            self._log("warn", f"master version {self.master_version[0]} is above "
+                              f"{KNI_MAX_450_MASTER_VERSION}: KNI would refuse this controller "
+                              "as a Katana 400/450 (docs/hardware.md, first power-on checklist)")
         try:
             self._poll(force_status=True)
-            self._setup()
-        except (TransportError, p.ControllerError) as exc:
+            if self._freeze_on_connect:  # lost mid-motion: stop what the buffer may still play
+                try:
+                    self._freeze(self.client)
+                    self._log("warn", "reconnected: froze the arm (the link was lost)")
+                except p.ControllerError as exc:
+                    self._log("error", f"reconnected: could not freeze the arm: {exc}")
+            try:
+                self._setup()
+            except p.ControllerError as exc:
+                self._setup_refused(exc)
+        except TransportError as exc:
             self.transport.close()
             self.link_error = f"set-up failed: {exc}"
             self._log("error", self.link_error)
             return False
-        if self._freeze_on_connect:  # lost mid-motion: stop what the buffer may still play
-            try:
-                self._freeze(self.client)
-                self._log("warn", "reconnected: froze the arm (the link was lost)")
-            except (TransportError, p.ControllerError) as exc:
-                self.transport.close()
-                self.link_error = f"could not freeze the arm after reconnecting: {exc}"
-                self._log("error", self.link_error)
-                return False
         self.connected = True
         self.link_error = ""
         return True
 
     def _setup(self) -> None:
+        self.setup_problem = ""
+        self._send_limits()
         self.calibrated = self._probe_calibrated()
         if not self.calibrated and self.calibrate_on_start and not self._calibrated_once:
             self._calibrate()
@@ -257,13 +291,50 @@ class ArmWorker(TrajectoryStreaming):
             )
         if self.calibrated:
             self._calibrated_once = True
+            self._keep_inside()
         self.client.collision_detection(self.collision_detection)
 
-    def _probe_calibrated(self) -> bool:
-        """A move of the gripper motor to where it is: refused when not calibrated."""
-        enc = self.client.read_positions()[5]
+    def _setup_refused(self, exc: p.ControllerError) -> None:
+        """A command refused during set-up: freeze the arm, report, refuse goals with it."""
+        self.setup_problem = f"set-up stopped: {exc}"
+        self._log("error", f"{self.setup_problem}; the arm is frozen and goals are refused "
+                           "until a new connection's set-up passes (restart the driver)")
         try:
-            self.client.move_motor(6, enc)
+            self._freeze(self.client)
+        except p.ControllerError as again:
+            self._log("error", f"could not freeze the arm after the refusal: {again}")
+
+    def _send_limits(self) -> None:
+        """Speed and acceleration limits of motors 1..6 (S 3 and S 4, one request each), as the
+        ROS 1 node's start-up sets them through KNI (setMotorVelocityLimit and
+        setMotorAccelerationLimit for every motor)."""
+        for motor in range(1, 7):
+            self.client.set_speed_limit(motor, self.speed_limits[motor - 1])
+            self.client.set_acceleration_limit(motor, self.acceleration_limits[motor - 1])
+
+    def _probe_calibrated(self) -> bool:
+        """Whether the controller still holds its calibration: it refuses moves until it is
+        calibrated, and keeps its calibration while it stays powered, so a reconnection or a
+        driver restart does not calibrate a calibrated arm again. The probe moves the gripper
+        motor to where it is (clamped into the margin); a refusal (0xC0) or a failure reply
+        (success byte 0) means not calibrated. A motor a collision stopped refuses every move,
+        so such motors are held where they are first (as the ROS 1 node unblocks before its
+        own probe): a collision is not taken for a lost calibration."""
+        if p.STATUS_COLLISION in self._status[:6]:
+            encoders = self.client.read_positions()
+            pairs = zip(self._status[:6], encoders, strict=True)
+            for motor, (status, enc) in enumerate(pairs, start=1):
+                if status == p.STATUS_COLLISION:
+                    try:
+                        self.client.hold_motor(motor, enc)
+                    except p.ControllerError as exc:
+                        self._log("warn", f"could not unblock motor {motor}: {exc}")
+            self._status = self.client.read_status()
+            self._status_stamp = time.monotonic()
+        enc = self.client.read_positions()[5]
+        lo, hi = self.model.safe_range(6, self.limit_margin)
+        try:
+            self.client.move_motor(6, min(max(enc, lo), hi))
         except p.ControllerError as exc:
             self._log("info", f"calibration probe: {exc}")
             return False
@@ -288,13 +359,34 @@ class ArmWorker(TrajectoryStreaming):
         )
 
     def _back_off_stops(self) -> None:
-        """Move every motor off its calibration stop into the joint limits (gripper: open)."""
-        targets = [
-            int(round(self.model.angle_to_encoder(i + 1, angle)))
-            for i, angle in enumerate(self.model.calibration_pose(CALIBRATION_BACKOFF_RAD))
-        ]
-        targets.append(int(round(self.model.gripper_angle_to_encoder(GRIPPER_OPEN_RAD))))
-        for motor, enc in enumerate(targets, start=1):
+        """Move every motor off its calibration stop to limit_margin (and a little more)
+        encoders inside its range; the gripper opens (clamped into the margin)."""
+        targets = self.model.backed_off_stops(self.limit_margin + CALIBRATION_BACKOFF_SLACK_ENC)
+        lo, hi = self.model.safe_range(6, self.limit_margin)
+        opened = int(round(self.model.gripper_angle_to_encoder(GRIPPER_OPEN_RAD)))
+        targets.append(min(max(opened, lo), hi))
+        self._move_and_wait(dict(enumerate(targets, start=1)), "back off their calibration stops")
+
+    def _keep_inside(self) -> None:
+        """Move the motors found within limit_margin of their limits (a calibrated arm that
+        was not backed off: KNI's own calibration leaves every motor on its stop) to the margin
+        and a little more inside, so that every target from here on can keep the margin."""
+        encoders = self.client.read_positions()
+        inner = self.limit_margin + CALIBRATION_BACKOFF_SLACK_ENC
+        targets = {}
+        for motor, enc in enumerate(encoders, start=1):
+            lo, hi = self.model.safe_range(motor, self.limit_margin)
+            if not lo <= enc <= hi:
+                low, high = self.model.safe_range(motor, inner)
+                targets[motor] = min(max(enc, low), high)
+        if targets:
+            self._log("info", f"motors {sorted(targets)} are within limit_margin_encoders "
+                              f"({self.limit_margin}) of a limit: moving them inside")
+            self._move_and_wait(targets, "move inside the limit margin")
+
+    def _move_and_wait(self, targets: dict[int, int], what: str) -> None:
+        """Move each motor to its target (C flag 24) and wait until all are there (10 s)."""
+        for motor, enc in targets.items():
             try:
                 self.client.move_motor(motor, enc)
             except NoReply:  # an absolute target: if lost, the state read below shows it
@@ -304,12 +396,13 @@ class ArmWorker(TrajectoryStreaming):
             self._stop.wait(0.1)
             self._poll(force_status=True)
             encoders = self._state.encoders
-            if all(abs(e - t) <= 2 for e, t in zip(encoders, targets, strict=True)):
+            late = [m for m, t in targets.items() if abs(encoders[m - 1] - t) > 2]
+            if not late:
                 return
-            for motor, (e, t) in enumerate(zip(encoders, targets, strict=True), start=1):
-                if abs(e - t) > 2 and self._status[motor - 1] == p.STATUS_HOLDING:
-                    self.client.move_motor(motor, t)  # known not taken (holding elsewhere)
-        raise TransportError("the motors did not back off their calibration stops in 10 s")
+            for motor in late:
+                if self._status[motor - 1] == p.STATUS_HOLDING:  # known not taken
+                    self.client.move_motor(motor, targets[motor])
+        raise TransportError(f"the motors did not {what} in 10 s")
 
     def _poll(self, force_status: bool = False) -> None:
         encoders = self.client.read_positions()
@@ -320,6 +413,11 @@ class ArmWorker(TrajectoryStreaming):
         if force_status or busy or self._stream is not None or self.polls % self.status_every == 0:
             self._status = self.client.read_status()
             self._status_stamp = time.monotonic()
+            for value in set(self._status) - p.KNOWN_STATUSES - self._unknown_statuses:
+                self._unknown_statuses.add(value)
+                self._log("warn", f"a motor reports status {value}, unknown to the driver "
+                                  f"(motors 1..6: {self._status}); docs/hardware.md, first "
+                                  "power-on checklist")
             if p.STATUS_COLLISION in self._status and not self.collision_message:
                 self._on_collision()
             elif p.STATUS_COLLISION not in self._status:

@@ -18,9 +18,15 @@ class KatanaClient:
         """An idempotent request: re-sent by the transport on a lost or corrupt reply."""
         return self.transport.request(command.payload, command.reply_len)
 
-    def _once(self, command: p.Command) -> None:
-        """A command that must not act twice: sent once (transport.NoReply: outcome unknown)."""
-        self.transport.command(command.payload, command.reply_len)
+    def _once(self, command: p.Command) -> bytes | None:
+        """A command that must not act twice: sent once (transport.NoReply: outcome unknown).
+        Returns the reply payload, or None when a reply came but was unreadable."""
+        return self.transport.command(command.payload, command.reply_len)
+
+    def _motor(self, command: p.Command, once: bool = False) -> None:
+        """A ``C`` command; its reply's success byte is checked (protocol.CommandFailed)."""
+        reply = self._once(command) if once else self._call(command)
+        p.check_motor_reply(reply, command.payload[1] & 0x7F)
 
     # ------------------------------------------------------------------ link
     def connect(self) -> None:
@@ -56,18 +62,19 @@ class KatanaClient:
 
     # ------------------------------------------------------------------ motor commands
     def move_motor(self, motor: int, encoder: int) -> None:
-        """Sent once: a lost reply raises transport.NoReply (read the motor's state)."""
-        self._once(p.motor_command(motor, p.FLAG_MOVE, encoder))
+        """Sent once: a lost reply raises transport.NoReply (read the motor's state); a
+        refusal raises ControllerError, a reply with success byte 0 CommandFailed."""
+        self._motor(p.motor_command(motor, p.FLAG_MOVE, encoder), once=True)
 
     def hold_motor(self, motor: int, encoder: int) -> None:
         """Hold at ``encoder``; also clears a collision stop (as the vendor's unblock does)."""
-        self._call(p.motor_command(motor, p.FLAG_HOLD, encoder))
+        self._motor(p.motor_command(motor, p.FLAG_HOLD, encoder))
 
     def motor_off(self, motor: int) -> None:
-        self._call(p.motor_command(motor, p.FLAG_OFF))
+        self._motor(p.motor_command(motor, p.FLAG_OFF))
 
     def motors_off(self) -> None:
-        self._call(p.motor_command(p.ALL_MOTORS, p.FLAG_OFF))
+        self._motor(p.motor_command(p.ALL_MOTORS, p.FLAG_OFF))
 
     def hold_all(self, encoders: Sequence[int]) -> None:
         """Every motor holds where ``encoders`` says (freeze: stop now)."""
@@ -76,21 +83,21 @@ class KatanaClient:
 
     def calibrate(self) -> None:
         """Start calibrating all motors (sent once); poll read_status until none calibrates."""
-        self._once(p.calibrate_all())
+        self._motor(p.calibrate_all(), once=True)
 
     def flush_buffers(self) -> None:
-        self._call(p.motor_command(p.ALL_MOTORS, p.FLAG_FLUSH))
+        self._motor(p.motor_command(p.ALL_MOTORS, p.FLAG_FLUSH))
 
     def set_encoder(self, motor: int, encoder: int) -> None:
-        self._call(p.motor_command(motor, p.FLAG_HOLD, encoder, set_encoder=True))
+        self._motor(p.motor_command(motor, p.FLAG_HOLD, encoder, set_encoder=True))
 
     def set_speed_limit(self, motor: int, positive: int, negative: int | None = None) -> None:
-        """Speed limits in encoders per 10 ms (firmware maximum 180)."""
+        """Speed limits in encoders per 10 ms (firmware maximum 180): ``S id 3 pos neg 0``."""
         neg = positive if negative is None else negative
         self._call(p.set_limit(motor, p.SUB_SPEED_LIMIT, positive, neg))
 
     def set_acceleration_limit(self, motor: int, acceleration: int) -> None:
-        """Acceleration limit in the firmware's unit (unconfirmed; 1 or 2 are usual)."""
+        """Acceleration limit, encoders per (10 ms)^2 (ROS 1 node: 1 or 2): ``S id 4 a 0 0``."""
         self._call(p.set_limit(motor, p.SUB_ACCEL_LIMIT, acceleration))
 
     def collision_detection(self, on: bool) -> None:

@@ -84,6 +84,18 @@ class MotorParams:
         return -self.ticks_per_rev * self.direction / (2.0 * math.pi)
 
 
+#: Motor 6 (the gripper) as KNI configures it (docs/KATANA.md: 51200 ticks per revolution,
+#: encoder offset 31000, angle offset -119.5 deg, direction +, angle range 329 deg): only its
+#: encoder range is used, (-15791, 31000); its angle is the linear gripper map below.
+GRIPPER_MOTOR = MotorParams(51200, 31000, -119.5, 1, 329.0, 0.0)
+
+#: The default of katana_driver_node's limit_margin_encoders: targets, trajectories and the
+#: calibration back-off stay this many encoders inside every motor's encoder range (a real
+#: controller is reported to refuse targets within about 200 encoders of its limits). One
+#: source with the arm contract and the planner: katana_description.models.
+DEFAULT_LIMIT_MARGIN_ENC = models.LIMIT_MARGIN_ENC
+
+
 def _wrap(angle: float) -> float:
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
@@ -97,12 +109,13 @@ class EncoderModel:
         self.variant = variant
         m5_offset = -171.5 if variant == "6M90B" else 8.5
         pi = math.pi
+        ticks = [models.ENCODERS_PER_REV[j] for j in ARM_JOINTS]
         self.motors = (
-            MotorParams(51200, 31000, 6.65, 1, 339.0, pi),
-            MotorParams(94976, -31000, 124.25, 1, -132.0, 0.0),
-            MotorParams(47488, -31000, 52.7, -1, 245.0, pi),
-            MotorParams(51200, 31000, 63.5, 1, 224.0, pi),
-            MotorParams(51200, 31000, m5_offset, 1, 336.0, pi),
+            MotorParams(ticks[0], 31000, 6.65, 1, 339.0, pi),
+            MotorParams(ticks[1], -31000, 124.25, 1, -132.0, 0.0),
+            MotorParams(ticks[2], -31000, 52.7, -1, 245.0, pi),
+            MotorParams(ticks[3], 31000, 63.5, 1, 224.0, pi),
+            MotorParams(ticks[4], 31000, m5_offset, 1, 336.0, pi),
         )
 
     # ------------------------------------------------------------------ arm motors 1..5
@@ -131,6 +144,21 @@ class EncoderModel:
 
     def encoder_range(self, motor: int) -> tuple[int, int]:
         return self.params(motor).encoder_range
+
+    def safe_range(self, motor: int, margin: int) -> tuple[int, int]:
+        """The encoder range of motor 1..6 less ``margin`` at both ends."""
+        lo, hi = self.encoder_range(motor) if motor <= 5 else self.gripper_encoder_range()
+        return lo + margin, hi - margin
+
+    def backed_off_stops(self, backoff_enc: int) -> list[int]:
+        """Encoders of motors 1..5 ``backoff_enc`` inside their calibration stops (the encoder
+        offset, where calibration leaves each motor), towards the other end of the range."""
+        targets = []
+        for motor in range(1, 6):
+            m = self.params(motor)
+            inward = 1 if m.encoder_stop > m.encoder_offset else -1
+            targets.append(m.encoder_offset + inward * int(backoff_enc))
+        return targets
 
     def calibration_pose(self, backoff_rad: float = 0.0) -> list[float]:
         """Angles of motors 1..5 at their calibration stops, moved ``backoff_rad`` inwards."""
@@ -171,6 +199,10 @@ class EncoderModel:
     def gripper_angle_to_encoder(angle: float) -> float:
         frac = (angle - GRIPPER_CLOSED_RAD) / (GRIPPER_OPEN_RAD - GRIPPER_CLOSED_RAD)
         return GRIPPER_CLOSED_ENC + frac * (GRIPPER_OPEN_ENC - GRIPPER_CLOSED_ENC)
+
+    @staticmethod
+    def gripper_encoder_range() -> tuple[int, int]:
+        return GRIPPER_MOTOR.encoder_range
 
     @staticmethod
     def gripper_speed_limit_enc() -> float:

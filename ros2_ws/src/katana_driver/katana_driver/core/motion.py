@@ -45,6 +45,8 @@ def ready_problem(worker: ArmWorker) -> str:
     """Why goals cannot run now ('' when they can)."""
     if not worker.connected:
         return f"no connection to the Katana controller ({worker.link_error})"
+    if worker.setup_problem:
+        return worker.setup_problem
     if not worker.calibrated:
         return "the arm is not calibrated; restart the driver with calibrate_on_startup:=true"
     if worker.state is None:
@@ -95,7 +97,7 @@ def run_trajectory(
         return ac.Outcome(ac.ABORTED, verdict.error_code, verdict.error_string)
     full = ac.complete_trajectory(goal, current)
     try:
-        plan = _plan(model, state.encoders, full, contract)
+        plan = _plan(model, state.encoders, full, contract, worker)
     except TrajectoryError as exc:
         return ac.Outcome(ac.ABORTED, ac.INVALID_GOAL, str(exc))
     judge = ac.TrajectoryJudge(full, contract)
@@ -147,18 +149,25 @@ def _watch(worker, plan, stream, judge, t0, cancelled, feedback, stop) -> ac.Out
             return _ended(worker, stop, outcome)
 
 
-def _plan(model: EncoderModel, encoders, goal: ac.TrajectoryGoal, contract: ac.ArmContract):
-    """Spline segments for the goal, with the contract's speed margin. Knots closer than 0.2 s
-    are merged into one segment, whose cubic can bulge past a limit the goal's own curve only
-    touches (a wrist driven to 0.5 mrad of its stop): then every knot is kept instead."""
+def _plan(model: EncoderModel, encoders, goal: ac.TrajectoryGoal, contract: ac.ArmContract,
+          worker: ArmWorker | None = None):
+    """Spline segments for the goal, with the contract's speed margin and the worker's limit
+    margin and speed and acceleration limits (the defaults without a worker). Knots closer
+    than 0.2 s are merged into one segment, whose cubic can bulge past a limit the goal's own
+    curve only touches: then every knot is kept instead."""
     args = (model, encoders, goal.times_s, goal.positions, goal.velocities)
+    limits = {} if worker is None else {
+        "limit_margin": worker.limit_margin,
+        "accel_limits": worker.acceleration_limits[:5],
+        "firmware_speed_limits": worker.speed_limits[:5],
+    }
     try:
-        return plan_trajectory(*args, speed_scale=contract.speed_margin)
+        return plan_trajectory(*args, speed_scale=contract.speed_margin, **limits)
     except TrajectoryError as exc:
         if "overshoot" not in str(exc):
             raise
         return plan_trajectory(*args, speed_scale=contract.speed_margin,
-                               min_segment_ticks=KEEP_KNOTS_MIN_TICKS)
+                               min_segment_ticks=KEEP_KNOTS_MIN_TICKS, **limits)
 
 
 def _judge(judge, plan, stream, state: ArmState, t0: float, feedback) -> ac.Outcome:
@@ -192,6 +201,9 @@ def run_gripper(
     if problem:
         return gc.GripperOutcome(ac.ABORTED, position, 0.0, False, False, problem)
     judge = gc.GripperJudge(goal, position, contract)
+    problem = _gripper_margin_problem(worker, model, judge.goal)
+    if problem:
+        return gc.GripperOutcome(ac.ABORTED, position, 0.0, False, False, problem)
     try:
         _send_gripper(worker, model, judge.goal, contract.gripper_tolerance_rad)
     except (TransportError, p.ControllerError, TimeoutError) as exc:
@@ -216,10 +228,22 @@ def run_gripper(
         if state.status[5] == p.STATUS_COLLISION:
             return judge.end(ac.ABORTED, position, worker.collision_message or "collision")
         outcome = judge.check(state.stamp - start, position, state.velocities[5],
-                              at_rest=state.status[5] != p.STATUS_MOVING)
+                              at_rest=state.status[5] not in p.MOVING_STATUSES)
         feedback(outcome if outcome.done else gc.GripperOutcome(ac.RUNNING, position, judge.effort))
         if outcome.done:
             return outcome
+
+
+def _gripper_margin_problem(worker: ArmWorker, model: EncoderModel, target: float) -> str:
+    """Why the gripper target is refused ('' when it is not): within limit_margin_encoders of
+    motor 6's encoder range."""
+    enc = model.gripper_angle_to_encoder(target)
+    lo, hi = model.safe_range(6, worker.limit_margin)
+    if lo <= enc <= hi:
+        return ""
+    return (f"gripper position {target:.4f} rad is encoder {enc:.0f}, closer than "
+            f"{worker.limit_margin} encoders (limit_margin_encoders) to the end of the gripper "
+            f"motor's range; targets stay in [{lo}, {hi}]")
 
 
 def _send_gripper(worker: ArmWorker, model: EncoderModel, target: float, tol: float) -> None:
@@ -233,7 +257,7 @@ def _send_gripper(worker: ArmWorker, model: EncoderModel, target: float, tol: fl
         except NoReply:
             status = worker.call(lambda client: client.read_status())[5]
             here = model.gripper_encoder_to_angle(worker.call(lambda c: c.read_positions())[5])
-            if status == p.STATUS_MOVING or abs(here - target) <= tol:
+            if status in p.MOVING_STATUSES or abs(here - target) <= tol:
                 return
     raise TransportError("the gripper command got no reply, twice, and was not taken")
 

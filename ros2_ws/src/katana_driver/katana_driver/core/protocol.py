@@ -15,6 +15,7 @@ import struct
 from dataclasses import dataclass
 
 from crc import Calculator, Crc16
+from katana_description import models
 
 HEADER = 0x01
 ADDRESS = 0x18  # the controller's bus address, 24
@@ -33,18 +34,40 @@ FLAG_MOVE = 24
 FLAG_FLUSH = 32
 SET_ENCODER_OFFSET = 128  # added to the motor id: set the encoder counter instead of moving
 
-# Status flags (N 1 0, D).
+# Status flags (N 1 0, D): KNI 4.3.0's enum TMotStsFlg (include/KNI/kmlMotBase.h), whose
+# comments give the new firmware's meaning: 4 calibrating, 8 holding, 16 "moving (polymb not
+# full)", 40 collision, 88 "poly move finished", 152 "moving poly, polymb full", 128 not valid.
+# 24 is the ROS 1 driver's "normal moving state" (Katana4D manual, quoted in its Katana.cpp)
+# and the motor command flag that starts a move. Which of 16/24 a real arm reports while it
+# plays splines is unconfirmed (docs/hardware.md, first power-on checklist).
 STATUS_OFF = 0
 STATUS_CALIBRATING = 4
 STATUS_HOLDING = 8
+STATUS_FOLLOWING = 16  # MSF_NORMOPSTAT: moving, the move buffer not full
 STATUS_MOVING = 24
 STATUS_COLLISION = 40
 STATUS_SPLINE_DONE = 88
 STATUS_INVALID = 128
+STATUS_BUFFER_FULL = 152  # MSF_LINMOV: moving, the move buffer full (wait before sending more)
+#: every status that means "this motor is moving"
+MOVING_STATUSES = frozenset((STATUS_FOLLOWING, STATUS_MOVING, STATUS_BUFFER_FULL))
+#: every status the driver knows (the others are logged once: docs/hardware.md's checklist)
+KNOWN_STATUSES = MOVING_STATUSES | {
+    STATUS_OFF, STATUS_CALIBRATING, STATUS_HOLDING, STATUS_COLLISION, STATUS_SPLINE_DONE,
+    STATUS_INVALID,
+}
 
-# S sub-commands.
+# S sub-commands (KNI 4.3.0 src/Base/kmlMotBase.cpp): 3 speed limits, request
+# ``S id 3 positive negative 0`` (CMotBase::setSpeedLimits); 4 acceleration limit, request
+# ``S id 4 acceleration 0 0`` (CMotBase::setAccelerationLimit); one byte each.
 SUB_SPEED_LIMIT = 3
 SUB_ACCEL_LIMIT = 4
+#: what the ROS 1 katana node sends to every motor at start-up (Katana::Katana() with
+#: katana_constants.h: KNI_MAX_VELOCITY = 180 "velocity limit <= 180 [enc / 10 ms]",
+#: KNI_MAX_ACCELERATION = 2 "acceleration limit = 1 or 2 [enc / (10 ms)^2]"); one source with
+#: the arm contract and the planner: katana_description.models
+KNI_MAX_VELOCITY = models.KNI_MAX_VELOCITY
+KNI_MAX_ACCELERATION = models.KNI_MAX_ACCELERATION
 
 # Activity flag of H (as the ROS 1 driver used it): more segments follow and start now,
 # this is the last segment (start now), more follow and do not start yet.
@@ -53,7 +76,7 @@ ACTIVITY_LAST = 1
 ACTIVITY_QUEUE = 2
 
 FIRMWARE_SPEED_LIMIT = 180  # encoders per 10 ms
-TICK_S = 0.01  # spline time unit: 10 ms
+TICK_S = models.CONTROL_TICK_S  # spline time unit: 10 ms
 SPLINE_SCALE = (1, 64, 1024, 32768)  # pos(t) = p0 + p1/64 t + p2/1024 t^2 + p3/32768 t^3
 
 INT16_MIN, INT16_MAX = -32768, 32767
@@ -83,6 +106,16 @@ class ControllerError(Exception):
         letter = chr(self.command) if 32 <= self.command < 127 else f"0x{self.command:02X}"
         axis = f" on axis {self.axis}" if self.axis else ""
         return f"controller refused '{letter}'{axis}: {self.message} (code {self.code})"
+
+
+class CommandFailed(ControllerError):
+    """The controller answered a command normally but with its success byte 0 (KNI's
+    CMotBase::sendTPS throws ParameterWritingException("TPS") on that reply to ``C``)."""
+
+    def __str__(self) -> str:
+        letter = chr(self.command) if 32 <= self.command < 127 else f"0x{self.command:02X}"
+        axis = f" for motor {self.axis}" if self.axis else " for all motors"
+        return f"controller answered '{letter}'{axis} with failure: {self.message}"
 
 
 def crc16_arc(data: bytes) -> int:
@@ -317,9 +350,19 @@ def decode_status(payload: bytes) -> list[int]:
 
 
 def decode_motor(payload: bytes) -> MotorState:
-    # Layout 'd', motor, status, pos(2), vel(2), pwm: unconfirmed beyond the KNI's reads.
-    status, pos, vel, pwm = struct.unpack(">Bhhb", payload[2:8])
+    # Layout 'd', motor, status, pos(2), vel(2), pwm as KNI reads it (CMotBase::recvPVP): pos
+    # and vel signed 16-bit, pwm one unsigned byte (TMotPVP.pwm is a `byte`, unsigned char).
+    status, pos, vel, pwm = struct.unpack(">BhhB", payload[2:8])
     return MotorState(status=status, position=pos, velocity=vel, pwm=pwm)
+
+
+def check_motor_reply(payload: bytes | None, motor: int) -> None:
+    """Raise CommandFailed when the reply to ``C`` says the command failed: its second byte
+    (the success flag KNI's sendTPS/sendAPS check, ``if (!buf[1]) throw``) is 0. ``None`` (a
+    reply that came but was unreadable) cannot say so and passes."""
+    if payload is not None and len(payload) >= 2 and payload[1] == 0:
+        raise CommandFailed(command=ord("C"), code=0, axis=motor,
+                            message="success byte 0 (the controller did not take the target)")
 
 
 def decode_gripper_sensors(payload: bytes) -> list[int]:

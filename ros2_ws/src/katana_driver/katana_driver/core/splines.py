@@ -1,4 +1,5 @@
-"""Joint trajectories -> Katana spline segments, checked against joint and speed limits.
+"""Joint trajectories -> Katana spline segments, checked against joint, speed and acceleration
+limits.
 
 The controller runs one cubic per motor and segment, pos(t) = p0 + p1/64 t + p2/1024 t^2 +
 p3/32768 t^3 with t in 10 ms ticks and 16-bit coefficients. Rounding p2 and p3 costs
@@ -7,6 +8,15 @@ p3/32768 t^3 with t in 10 ms ticks and 16-bit coefficients. Rounding p2 and p3 c
 closer than that are merged. Knot velocities come from the goal or, when it has none, are
 zero (the arm stops at every point, as the simulation's controller does, so one goal moves
 both backends alike and never overshoots between points); the arm starts and ends at rest.
+
+Every knot and every point between knots stays ``limit_margin`` encoders inside the motor's
+encoder range (a real controller is reported to refuse targets within about 200 encoders of
+its limits); only a segment that starts inside the margin, where the arm already is, may move
+there, and only towards the inside. A segment's acceleration (the cubic's second derivative,
+encoders per tick squared) must not exceed the motor's limit: KNI's own moves use 2 (the ROS 1
+node's KNI_MAX_ACCELERATION), where an unchecked 20-tick segment at full speed asked for 36.
+Goals that break a limit are refused with the reason, never re-timed: the arm contract judges
+the goal on its own timing.
 """
 
 from __future__ import annotations
@@ -18,12 +28,18 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 
-from .encoders import ARM_JOINTS, EncoderModel
-from .protocol import INT16_MAX, INT16_MIN, SPLINE_SCALE, TICK_S, SplineSegment
+from .encoders import ARM_JOINTS, DEFAULT_LIMIT_MARGIN_ENC, EncoderModel
+from .protocol import (
+    INT16_MAX,
+    INT16_MIN,
+    KNI_MAX_ACCELERATION,
+    SPLINE_SCALE,
+    TICK_S,
+    SplineSegment,
+)
 
 MIN_SEGMENT_TICKS = 20
 MAX_SEGMENT_TICKS = 50
-LIMIT_MARGIN_ENC = 20  # tolerated excursion beyond the encoder range (about 0.15 deg)
 START_TOLERANCE_RAD = 0.05  # a point at t=0 must be this close to where the arm is
 
 
@@ -39,6 +55,11 @@ def cubic_speed_max(c1: float, c2: float, c3: float, duration: float) -> float:
         if 0.0 < t_star < duration:
             candidates.append(t_star)
     return max(abs(c1 + 2.0 * c2 * t + 3.0 * c3 * t * t) for t in candidates)
+
+
+def cubic_accel_max(c2: float, c3: float, duration: float) -> float:
+    """Largest |2 c2 + 6 c3 t| over t in [0, duration] (linear in t: at an end)."""
+    return max(abs(2.0 * c2), abs(2.0 * c2 + 6.0 * c3 * float(duration)))
 
 
 def cubic_extremes(c: Sequence[float], duration: float) -> tuple[float, float]:
@@ -160,15 +181,22 @@ def plan_trajectory(
     speed_scale: float = 1.0,
     min_segment_ticks: int = MIN_SEGMENT_TICKS,
     max_segment_ticks: int = MAX_SEGMENT_TICKS,
+    limit_margin: int = DEFAULT_LIMIT_MARGIN_ENC,
+    accel_limits: Sequence[float] | None = None,
+    firmware_speed_limits: Sequence[float] | None = None,
 ) -> SplinePlan:
     """Plan spline segments for motors 1..5 from the arm's encoders and a joint trajectory.
 
     ``positions`` rows are joint angles in ARM_JOINTS order, at ``times_s`` from the start.
-    Raises TrajectoryError naming the joint and the limit when the goal cannot be run.
+    ``limit_margin``: encoders every point keeps inside the encoder ranges; ``accel_limits``:
+    per motor 1..5, encoders per tick squared (default KNI's 2); ``firmware_speed_limits``:
+    the speed limits set on the controller, encoders per tick (the joint speed limits apply
+    anyway). Raises TrajectoryError naming the joint and the limit when the goal cannot run.
     """
     times, q, v = _checked_goal(times_s, positions, velocities)
-    enc, enc_per_tick = _encoder_knots(model, q, v)
+    at_start = bool(np.round(times[0] / TICK_S) <= 0.0)  # a point at t=0: where the arm is
     start = np.asarray(start_encoders[:5], dtype=float)
+    enc, enc_per_tick = _encoder_knots(model, q, v, limit_margin, at_start, start)
     ticks, enc, enc_per_tick = _from_start(model, start, times, enc, enc_per_tick,
                                            min_segment_ticks)
     curve, knot_ticks = _knot_curve(ticks, enc, enc_per_tick, min_segment_ticks)
@@ -176,7 +204,14 @@ def plan_trajectory(
     for a, b in zip(knot_ticks[:-1], knot_ticks[1:], strict=True):
         n = math.ceil((b - a) / max_segment_ticks)
         bounds += [a + round((b - a) * (i + 1) / n) for i in range(n)]
-    limits = [model.speed_limit_enc(j + 1) * speed_scale for j in range(5)]
+    limits = _Limits(
+        speed=[model.speed_limit_enc(j + 1) * speed_scale for j in range(5)],
+        accel=[float(a) for a in (accel_limits or [KNI_MAX_ACCELERATION] * 5)[:5]],
+        margin=int(limit_margin),
+    )
+    if firmware_speed_limits is not None:
+        limits.speed = [min(a, float(b))
+                        for a, b in zip(limits.speed, firmware_speed_limits[:5], strict=True)]
     deriv = curve.derivative()
     segments: list[list[SplineSegment]] = []
     prev = [int(round(e)) for e in start]
@@ -213,20 +248,46 @@ def _checked_goal(
     return times, q, v
 
 
+@dataclass
+class _Limits:
+    speed: list[float]  # encoders per tick, motors 1..5
+    accel: list[float]  # encoders per tick squared, motors 1..5
+    margin: int  # encoders kept inside every encoder range
+
+
+#: encoders a knot may lie beyond the range and still be "on the limit" (the URDF's limits are
+#: rounded to 6 decimals: under 0.01 encoders)
+_ON_LIMIT_ENC = 1.0
+
+
 def _encoder_knots(
-    model: EncoderModel, q: np.ndarray, v: np.ndarray | None
+    model: EncoderModel, q: np.ndarray, v: np.ndarray | None, margin: int, at_start: bool,
+    start: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """The knots in encoder space (checked against the ranges) and their slopes per tick."""
+    """The knots in encoder space and their slopes per tick. Every knot must lie ``margin``
+    encoders inside the encoder range, but for a first knot at t=0 (it stands for where the
+    arm is, which _from_start checks) and a motor held where it is at every knot (no new
+    target: the joints a partial goal leaves out): those must only be inside the limits."""
     enc = np.empty_like(q)
     for j in range(5):
         lo, hi = model.encoder_range(j + 1)
         lo_rad, hi_rad = model.joint_limits(j + 1)
+        per_rad = abs(model.params(j + 1).enc_per_rad)
+        held = all(abs(model.angle_to_encoder(j + 1, a) - start[j]) <= _ON_LIMIT_ENC
+                   for a in q[:, j])
         for k in range(len(q)):
             e = model.angle_to_encoder(j + 1, q[k, j])
-            if not lo - LIMIT_MARGIN_ENC <= e <= hi + LIMIT_MARGIN_ENC:
+            if not lo - _ON_LIMIT_ENC <= e <= hi + _ON_LIMIT_ENC:
                 raise TrajectoryError(
                     f"point {k}: {ARM_JOINTS[j]} = {q[k, j]:.4f} rad is outside its limits "
                     f"[{lo_rad:.4f}, {hi_rad:.4f}]"
+                )
+            if not ((k == 0 and at_start) or held) and not lo + margin <= e <= hi - margin:
+                raise TrajectoryError(
+                    f"point {k}: {ARM_JOINTS[j]} = {q[k, j]:.4f} rad is "
+                    f"{min(abs(e - lo), abs(hi - e)):.0f} encoders from the end of its range; "
+                    f"targets stay {margin} encoders inside it (limit_margin_encoders), in "
+                    f"[{lo_rad + margin / per_rad:.4f}, {hi_rad - margin / per_rad:.4f}] rad"
                 )
             enc[k, j] = e
     enc_per_tick = None
@@ -301,24 +362,34 @@ def _segment_row(
     v0: np.ndarray,
     v1: np.ndarray,
     ticks: int,
-    limits: Sequence[float],
+    limits: _Limits,
 ) -> list[SplineSegment]:
-    """One segment per motor from ``prev`` to ``e1``, checked against speed and range."""
+    """One segment per motor from ``prev`` to ``e1``, checked against speed, acceleration and
+    range (a segment may start inside the margin, where the arm is, but not go further out)."""
     row = []
     for j in range(5):
         c = hermite_coefficients(prev[j], float(e1[j]), float(v0[j]), float(v1[j]), ticks)
+        per_rad = abs(model.speed_to_encoder(j + 1, 1.0))  # encoders per tick at 1 rad/s
         speed = cubic_speed_max(c[1], c[2], c[3], ticks)
-        if speed > limits[j] * (1.0 + 1e-6) + 1e-9:
-            per_rad = abs(model.speed_to_encoder(j + 1, 1.0))
+        if speed > limits.speed[j] * (1.0 + 1e-6) + 1e-9:
             raise TrajectoryError(
                 f"{ARM_JOINTS[j]} would move at {speed / per_rad:.3f} rad/s, above its "
-                f"limit of {limits[j] / per_rad:.3f} rad/s; give the trajectory more time"
+                f"limit of {limits.speed[j] / per_rad:.3f} rad/s; give the trajectory more time"
+            )
+        accel = cubic_accel_max(c[2], c[3], ticks)
+        if accel > limits.accel[j] * (1.0 + 1e-6) + 1e-9:
+            to_rad_s2 = 1.0 / (per_rad * TICK_S)  # encoders per tick^2 -> rad/s^2
+            raise TrajectoryError(
+                f"{ARM_JOINTS[j]} would accelerate at {accel * to_rad_s2:.3f} rad/s^2, above "
+                f"its limit of {limits.accel[j] * to_rad_s2:.3f} rad/s^2 ({limits.accel[j]:g} "
+                "encoders per 10 ms squared, acceleration_limits); give the trajectory more time"
             )
         lo, hi = model.encoder_range(j + 1)
         low, high = cubic_extremes(c, ticks)
-        if low < lo - LIMIT_MARGIN_ENC or high > hi + LIMIT_MARGIN_ENC:
+        if low < min(lo + limits.margin, prev[j]) or high > max(hi - limits.margin, prev[j]):
             raise TrajectoryError(
-                f"{ARM_JOINTS[j]} would overshoot its limits between trajectory points"
+                f"{ARM_JOINTS[j]} would overshoot its limits between trajectory points (the "
+                f"driver keeps {limits.margin} encoders inside them, limit_margin_encoders)"
             )
         row.append(quantize(c, float(e1[j]), ticks))
     return row

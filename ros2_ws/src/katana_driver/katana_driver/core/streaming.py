@@ -7,6 +7,12 @@ moving means it was taken (go on), motors done means it was not (the arm has sto
 end of the previous segment: the stream ends with an error and the goal is aborted). Before
 the motion starts, a lost reply is resolved by flushing the move buffers (harmless twice) and
 streaming again from the first segment.
+
+Once the arm moves, a segment goes out only after a status read that came after the previous
+one, and not while a motor reports its move buffer full (152, KNI's MSF_LINMOV "moving poly,
+polymb full"): KNI waits that out before it sends a segment (lmBase.cpp, CLMBase::movLM2P
+polls the motors until none reports 152). A buffer that stays full for BUFFER_FULL_TIMEOUT_S
+ends the stream with an error (the goal is aborted and the arm frozen).
 """
 
 from __future__ import annotations
@@ -26,6 +32,10 @@ MAX_IN_BUFFER = 12  # of the assumed 16-segment move buffer
 CONFIRM_MARGIN_S = 0.06  # read the status this long after an unconfirmed segment should start
 MAX_RESTARTS = 3  # re-streams (after a flush) of a trajectory that has not started moving
 START_SLACK_ENC = 5  # encoders a motor may be from the plan's start for a re-stream
+#: a full move buffer frees a slot when its playing segment ends (at most 0.5 s, the longest
+#: segment): full for this long means the controller no longer plays it
+BUFFER_FULL_TIMEOUT_S = 3.0
+STATUS_REFRESH_S = 0.04  # while the buffer is full, read the status at most this often
 
 
 @dataclass
@@ -43,6 +53,8 @@ class Stream:
     ends: list[float] = field(default_factory=list)  # estimated end of each segment taken
     unconfirmed: tuple[int, int, float, float] | None = None  # index, activity, sent, check at
     restarts: int = 0
+    last_sent_at: float = 0.0  # monotonic time of the last segment sent
+    full_since: float | None = None  # when a motor was first seen reporting a full buffer
 
     def duration_of(self, index: int) -> float:
         return self.plan.segments[index][0].duration * p.TICK_S
@@ -114,6 +126,8 @@ class TrajectoryStreaming:
                 in_buffer = sum(1 for e in stream.ends if e > now)
                 if in_buffer >= MAX_IN_BUFFER or stream.queue_end - now > LOOKAHEAD_S:
                     return
+                if not self._buffer_has_room(stream):
+                    return
             if i == n - 1:
                 activity = p.ACTIVITY_LAST
             elif stream.started_at is None and plan.start_ticks[i + 1] < START_BUFFER_TICKS:
@@ -122,7 +136,7 @@ class TrajectoryStreaming:
                 activity = p.ACTIVITY_START
             row = plan.segments[i]
             gripper = hold_segment(stream.gripper_enc, row[0].duration)
-            sent_at = time.monotonic()
+            sent_at = stream.last_sent_at = time.monotonic()
             try:
                 self.client.send_spline_all([*row, gripper], activity)
             except NoReply as exc:
@@ -135,6 +149,29 @@ class TrajectoryStreaming:
                 break  # one segment per turn once moving, so that polls are never starved
         if stream.sent >= n:
             self._end_stream(None)
+
+    def _buffer_has_room(self, stream: Stream) -> bool:
+        """False while a motor reports its move buffer full (152), from a status read after
+        the last segment went out; ends the stream when that lasts BUFFER_FULL_TIMEOUT_S."""
+        full = p.STATUS_BUFFER_FULL in self._status[:6]
+        now = time.monotonic()
+        if self._status_stamp <= stream.last_sent_at or (
+            full and now - self._status_stamp >= STATUS_REFRESH_S
+        ):
+            self._status, self._status_stamp = self.client.read_status(), time.monotonic()
+            full = p.STATUS_BUFFER_FULL in self._status[:6]
+        if not full:
+            stream.full_since = None
+            return True
+        if stream.full_since is None:
+            stream.full_since = now
+            self._log("debug", "the controller's move buffer is full (152): waiting")
+        elif now - stream.full_since > BUFFER_FULL_TIMEOUT_S:
+            motors = [i + 1 for i, st in enumerate(self._status[:6]) if st == p.STATUS_BUFFER_FULL]
+            self._end_stream(RuntimeError(
+                f"the controller's move buffer stayed full (status 152 on motors {motors}) for "
+                f"{BUFFER_FULL_TIMEOUT_S:g} s; stopped the trajectory"))
+        return False
 
     def _taken(self, stream: Stream, i: int, activity: int, sent_at: float) -> None:
         """Segment ``i`` is in the controller's buffer."""
@@ -165,9 +202,10 @@ class TrajectoryStreaming:
         at_end = all(abs(e - seg.target) <= START_SLACK_ENC
                      for e, seg in zip(encoders, row, strict=False))
         moved = any(seg.target != seg.p0 for seg in row)
-        # Moving: it plays (nothing else is queued after it). Done at its end (a late answer
-        # to the status read): it played. Done where it starts: the queue ran dry without it.
-        if all(s == p.STATUS_MOVING for s in status[:5]) or (at_end and moved):
+        # Moving (16, 24 or 152): it plays (nothing else is queued after it). Done at its end
+        # (a late answer to the status read): it played. Done where it starts: the queue ran
+        # dry without it.
+        if all(s in p.MOVING_STATUSES for s in status[:5]) or (at_end and moved):
             self._log("info", f"segment {i} was taken (the motors play or played it)")
             self._taken(stream, i, activity, sent_at)
             return True

@@ -5,7 +5,8 @@ Joint angles follow the ROS 1 URDF conventions (katana_description/models.py): q
 q5 rolls the wrist. The inverse kinematics is closed form for a top-down grasp: the approach
 axis is -z, so the motor-4 joint sits straight above the tool point and the shoulder-elbow-wrist
 triangle is solved with the law of cosines; q5 then sets the gripper's yaw. Every solution is
-checked against the joint limits, and an unreachable target raises `Unreachable` with the reason.
+checked against the target limits (the joint limits less the driver's limit margin, the arm
+contract's `target_limits`), and an unreachable target raises `Unreachable` with the reason.
 """
 
 from __future__ import annotations
@@ -17,9 +18,18 @@ import numpy as np
 from katana_description import models as m
 
 ARM_JOINTS = m.ARM_JOINTS
-LOWER = np.array([m.JOINT_LIMITS[j][0] for j in ARM_JOINTS])
-UPPER = np.array([m.JOINT_LIMITS[j][1] for j in ARM_JOINTS])
+#: the planner's targets keep this much (rad, under 0.2 encoders) inside the target limits, so
+#: that the driver's encoder check, on the exact encoder model, never finds one on the line
+TARGET_SLACK_RAD = 1e-5
+#: where every planned pose lies: the joint limits shrunk by models.LIMIT_MARGIN_ENC encoders
+#: (what the arm contract and the driver accept as targets; a real controller refuses targets
+#: closer to its limits)
+TARGET_LIMITS = m.inner_limits(m.JOINT_LIMITS, m.LIMIT_MARGIN_ENC)
+LOWER = np.array([TARGET_LIMITS[j][0] for j in ARM_JOINTS]) + TARGET_SLACK_RAD
+UPPER = np.array([TARGET_LIMITS[j][1] for j in ARM_JOINTS]) - TARGET_SLACK_RAD
 MAX_SPEED = np.array([m.JOINT_MAX_SPEED[j] for j in ARM_JOINTS])
+#: rad/s^2: the controller's acceleration limit (models.KNI_MAX_ACCELERATION) per joint
+MAX_ACCEL = np.array([m.JOINT_MAX_ACCEL[j] for j in ARM_JOINTS])
 
 
 class Unreachable(ValueError):

@@ -83,6 +83,10 @@ class PickPlaceParams:
     # stack of four by 1.7 cm, and a held block clears a stack of three
     transit_height: float = 0.15
     speed_fraction: float = 0.9  # of each joint's speed limit, at the peak of a move
+    # of each joint's acceleration limit (the controller's, models.JOINT_MAX_ACCEL), at the
+    # peak: the rest is for what the plan cannot know (the arm a few encoders off its last
+    # target, the driver's rounding to whole encoders)
+    accel_fraction: float = 0.85
     min_segment_time: float = MIN_SEGMENT_TIME_S
     cruise_piece_s: float = 0.25  # long moves are cut into pieces of about this duration
     transit_lift_rad: float = 0.2  # shoulder raised from the top-down transit pose

@@ -14,9 +14,15 @@ from dataclasses import dataclass
 
 import numpy as np
 from katana_description import models as m
-from katana_description.arm_contract import hermite_peak_speed
+from scipy.interpolate import CubicHermiteSpline
 
-from katana_manipulation.core.kinematics import MAX_SPEED, KatanaKinematics, Unreachable, wrap
+from katana_manipulation.core.kinematics import (
+    MAX_ACCEL,
+    MAX_SPEED,
+    KatanaKinematics,
+    Unreachable,
+    wrap,
+)
 from katana_manipulation.core.pick_place_types import (
     INVALID_GOAL,
     LEVEL_TOLERANCE_M,
@@ -30,9 +36,47 @@ from katana_manipulation.core.pick_place_types import (
 )
 from katana_manipulation.core.reach import pick_reach, place_reach
 
+TICK_S = m.CONTROL_TICK_S
+#: a segment whose cubic breaks a limit stretches by at most this factor (and at least a
+#: tick) per step, for at most STRETCH_STEPS steps (then every point becomes a stop)
+STRETCH_STEP = 1.05
+STRETCH_STEPS = 400
+
 
 def _finite(values) -> bool:
     return all(math.isfinite(float(v)) for v in values)
+
+
+def _ticks(seconds: np.ndarray) -> np.ndarray:
+    """Durations rounded up to whole controller ticks (the driver runs its splines on them)."""
+    return np.ceil(np.asarray(seconds, float) / TICK_S - 1e-9)
+
+
+def _through_velocities(dq: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Velocities at the points (at rest at both ends): the harmonic mean of the neighbouring
+    segments' mean speeds where a joint keeps moving the same way, else 0."""
+    slope = dq / h[:, None]
+    v = np.zeros((len(dq) + 1, dq.shape[1]))
+    a, b = slope[:-1], slope[1:]
+    same = a * b > 0
+    v[1:-1] = np.where(same, 2.0 * a * b / np.where(same, a + b, 1.0), 0.0)
+    return v
+
+
+def hermite_peaks(q: np.ndarray, v: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Peak |speed| and |acceleration| (segments x joints) of the cubic Hermite spline through
+    the points ``q`` with velocities ``v``, segment durations ``h``: its speed is a quadratic in
+    time (peak at an end or the vertex), its acceleration linear (peak at an end)."""
+    t = np.concatenate([[0.0], np.cumsum(h)])
+    c = CubicHermiteSpline(t, q, v, axis=0).c  # c[0] dt^3 + c[1] dt^2 + c[2] dt + c[3]
+    hh = h[:, None]
+    accel = np.maximum(np.abs(2.0 * c[1]), np.abs(2.0 * c[1] + 6.0 * c[0] * hh))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        vertex = np.where(c[0] != 0.0, -c[1] / (3.0 * c[0]), 0.0)
+    vertex = np.clip(vertex, 0.0, hh)
+    speed = np.maximum.reduce([np.abs(v[:-1]), np.abs(v[1:]),
+                               np.abs(3.0 * c[0] * vertex**2 + 2.0 * c[1] * vertex + c[2])])
+    return speed, accel
 
 
 @dataclass
@@ -80,14 +124,18 @@ class PickPlacePlanner:
         The arm starts and ends at rest; at an interior waypoint a joint that keeps moving the
         same way passes through at the harmonic mean of its neighbouring segments' mean speeds
         (monotone, as in Fritsch-Carlson), so a multi-point move does not stop at each point.
-        Segment times then stretch until every cubic Hermite segment peaks within
-        speed_fraction of the limits.
+        Segment times, whole 10 ms controller ticks, then stretch until every cubic Hermite
+        segment peaks within speed_fraction of the speed limits and accel_fraction of the
+        controller's acceleration limits (kinematics.MAX_ACCEL, the arm contract's). Should
+        that not settle, every point becomes a stop, each segment timed on its own: a cubic
+        from rest to rest over h peaks at 1.5 d / h and 6 d / h^2.
 
         A long segment is first cut into pieces of about `cruise_piece_s` along its straight line
         in joint space: one cubic from rest to rest peaks at 1.5 times its mean speed, so a long
         pan would crawl at 60 % of the limit on average; through the pieces the joints cruise
         near the limit, on the same joint-space path."""
         vmax = MAX_SPEED * self.p.speed_fraction
+        amax = MAX_ACCEL * self.p.accel_fraction
         q = [np.asarray(start, float)]
         for pt in points:
             pt = np.asarray(pt, float)
@@ -95,29 +143,32 @@ class PickPlacePlanner:
                 continue
             pieces = int(round(np.max(np.abs(pt - q[-1]) / vmax) / self.p.cruise_piece_s))
             pieces = min(max(pieces, 1), 8)
-            for k in range(1, pieces):
-                q.append(q[-1] + (pt - q[-1]) / (pieces - k + 1))
+            for k in range(1, pieces):  # targets, so within the limit margin (even when
+                # the arm starts inside it: the pieces move out of it at once)
+                q.append(np.clip(q[-1] + (pt - q[-1]) / (pieces - k + 1),
+                                 self.kin.lower, self.kin.upper))
             q.append(pt)
         if len(q) == 1:
             return [], [], []
         qs = np.array(q)
         dq = np.diff(qs, axis=0)
-        h = np.maximum(self.p.min_segment_time, np.max(np.abs(dq) / vmax, axis=1))
-        for _ in range(30):
-            slope = dq / h[:, None]
-            v = np.zeros_like(qs)
-            a, b = slope[:-1], slope[1:]
-            same = a * b > 0
-            v[1:-1] = np.where(same, 2.0 * a * b / np.where(same, a + b, 1.0), 0.0)
-            stretch = np.ones(len(h))
-            for i in range(len(h)):
-                for j in range(qs.shape[1]):
-                    peak = hermite_peak_speed(qs[i, j], qs[i + 1, j], v[i, j], v[i + 1, j], h[i])
-                    stretch[i] = max(stretch[i], peak / vmax[j])
-            if np.all(stretch <= 1.0 + 1e-9):
+        ticks = _ticks(np.maximum(self.p.min_segment_time, np.max(np.abs(dq) / vmax, axis=1)))
+        for _ in range(STRETCH_STEPS):
+            v = _through_velocities(dq, ticks * TICK_S)
+            speed, accel = hermite_peaks(qs, v, ticks * TICK_S)
+            stretch = np.max(np.maximum(speed / vmax, np.sqrt(accel / amax)), axis=1)
+            if np.all(stretch <= 1.0):
                 break
-            h = h * np.maximum(stretch, 1.0 + 1e-6)
-        times = np.cumsum(h)
+            # a little at a time: a longer segment slows its neighbours' ends down too
+            grow = np.minimum(stretch, STRETCH_STEP)
+            ticks = np.where(stretch > 1.0,
+                             np.maximum(_ticks(ticks * TICK_S * grow), ticks + 1), ticks)
+        else:  # stop at every point: each segment on its own, from rest to rest
+            v = np.zeros_like(qs)
+            d = np.abs(dq)
+            ticks = _ticks(np.maximum(self.p.min_segment_time, np.max(
+                np.maximum(1.5 * d / vmax, np.sqrt(6.0 * d / amax)), axis=1)))
+        times = np.cumsum(ticks) * TICK_S
         return ([list(map(float, row)) for row in qs[1:]], [float(t) for t in times],
                 [list(map(float, row)) for row in v[1:]])
 
@@ -202,6 +253,7 @@ class PickPlacePlanner:
 
     def _transit(self, pan: float, yaw_q5: float) -> np.ndarray:
         r, z = self.p.transit_radius, self.p.transit_height
+        pan = float(np.clip(pan, self.kin.lower[0], self.kin.upper[0]))  # a target: in the margin
         x, y = r * math.cos(pan), r * math.sin(pan)
         while True:  # the highest top-down pose there, at most transit_height
             try:
@@ -455,7 +507,7 @@ class PickPlacePlanner:
         try:
             up = self.kin.ik_top_down(pos[0], pos[1], min(pos[2] + 0.05, 0.12), 0.0, math.pi,
                                       current[4])
-            up[4] = current[4]
+            up[4] = np.clip(current[4], self.kin.lower[4], self.kin.upper[4])  # a target
             pts.append(up)
         except Unreachable:
             pass
