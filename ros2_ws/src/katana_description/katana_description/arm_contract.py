@@ -23,19 +23,18 @@ API (stable; plain Python in, plain Python out):
   negative = no tolerance (control_msgs' meaning).
 - ``validate_trajectory(goal, current, contract) -> Verdict``: ``Verdict(SUCCESSFUL, "")`` or
   the error code and a reason. ``current`` maps every arm joint to its measured angle (rad).
-  Checked: names (arm joints only, no duplicates, no multi-DOF parts, INVALID_JOINTS; a partial goal names a
-  subset and the other joints hold where they are), at least one point, finite times >= 0,
-  strictly increasing, last point within ``max_trajectory_s``; finite positions within the
-  model's limits (no wrapping: every Katana joint is a bounded revolute joint whose range
-  is under 2 pi, so ``q + 2 pi`` is a different, unreachable, command), and every point after
-  t = 0 within ``target_limits`` (a point at t = 0 stands for where the arm is, which may be
-  closer to a limit; so may a joint the goal holds where it is at every point); velocities
-  finite, one
-  per joint or none, zero at the last point (both backends stop there); a point at t = 0 within
-  ``START_JUMP_RAD`` of ``current``; the peak speed of every cubic Hermite segment (the first
-  from ``current`` at rest) within the joint's limit times ``speed_margin``, and its peak
-  acceleration within ``max_accel`` (no margin: the controller's limit); tolerances finite,
-  for joints of the goal, no duplicates; ``goal_time_tolerance_s`` finite and >= 0.
+  Checked: names (arm joints only, no duplicates, no multi-DOF parts, INVALID_JOINTS; a partial goal
+  names a subset and the other joints hold where they are), at least one point, finite times >= 0,
+  strictly increasing, last point within ``max_trajectory_s``; finite positions within the model's
+  limits (no wrapping: every Katana joint is a bounded revolute joint whose range is under 2 pi, so
+  ``q + 2 pi`` is a different, unreachable, command), and every point after t = 0 within
+  ``target_limits`` (a point at t = 0 stands for where the arm is, which may be closer to a limit;
+  so may a joint the goal holds where it is at every point); velocities finite, one per joint or
+  none, zero at the last point (both backends stop there); a point at t = 0 within
+  ``START_JUMP_RAD`` of ``current``; the peak speed of every cubic Hermite segment (the first from
+  ``current`` at rest) within the joint's limit times ``speed_margin``, and its peak acceleration
+  within ``max_accel`` (no margin: the controller's limit); tolerances finite, for joints of the
+  goal, no duplicates; ``goal_time_tolerance_s`` finite and >= 0.
 - ``complete_trajectory(goal, current) -> TrajectoryGoal``: the goal on all five arm joints in
   ``models.ARM_JOINTS`` order (joints a partial goal leaves out hold ``current``); velocities
   ``None`` when the goal gives none. Call it on a validated goal.
