@@ -1,10 +1,16 @@
 """Start the Katana node graph as separate processes (full ROS 2 install: `ros2 launch`).
 
     ros2 launch katana_bringup sim.launch.py [backend:=sim|hardware] [params_file:=FILE]
-        [record:=FILE.mcap]
+        [record:=FILE.mcap] [frames:=katana|robot_state_publisher]
 
-The whole graph of docs/DESIGN.md: the arm (sim or hardware), the pick-and-place executor,
-perception, block memory, fovea and the curiosity node.
+The whole graph of docs/DESIGN.md: the arm (sim or hardware), the frame tree, the
+pick-and-place executor, perception, block memory, fovea and the curiosity node.
+
+The frame tree (/tf, /tf_static, robot_description): frames:=katana (the default) runs
+katana_description's frame_publisher, as katana-run does; frames:=robot_state_publisher runs
+robot_state_publisher on the same URDF (katana_<model>.urdf, the model of frame_publisher's
+section of the parameter files) and frame_publisher with robot_frames false, for the frames
+robot_state_publisher does not know: world -> arm base and the camera.
 
 Same nodes and the same parameter files, in the same order, as the all-in-one runner
 (`ros2 run katana_bringup katana-run`, katana_bringup.run.default_params_files): graph.yaml
@@ -19,11 +25,32 @@ parameter specs (katana_bringup.config_files).
 import os
 
 from ament_index_python.packages import get_package_share_directory
-from katana_bringup.run import default_params_files
+from katana_bringup.run import default_params_files, load_params
+from katana_description import models, urdf_path
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+
+
+def _frame_nodes(frames: str, files: list[str]) -> list:
+    """frame_publisher alone, or robot_state_publisher with frame_publisher for the scene."""
+    if frames == "katana":
+        return [Node(package="katana_description", executable="frame_publisher",
+                     name="frame_publisher", parameters=files, output="screen")]
+    params = load_params(files)
+    model = {**params.get("/**", {}), **params.get("frame_publisher", {})}.get(
+        "model", models.DEFAULT_MODEL)
+    description = urdf_path(f"katana_{model}.urdf").read_text(encoding="utf-8")
+    return [
+        # the files' `/**` section gives it use_sim_time; it ignores the names it does not declare
+        Node(package="robot_state_publisher", executable="robot_state_publisher",
+             name="robot_state_publisher",
+             parameters=[*files, {"robot_description": description}], output="screen"),
+        Node(package="katana_description", executable="frame_publisher",
+             name="frame_publisher", parameters=[*files, {"robot_frames": False}],
+             output="screen"),
+    ]
 
 
 def _nodes(context) -> list:
@@ -31,7 +58,7 @@ def _nodes(context) -> list:
     overlay = LaunchConfiguration("params_file").perform(context)
     files = [str(f) for f in default_params_files(backend)] + ([overlay] if overlay else [])
     hardware = LaunchConfiguration("hardware_params_file").perform(context)
-    nodes = []
+    nodes = _frame_nodes(LaunchConfiguration("frames").perform(context), files)
     if backend == "sim":
         nodes.append(Node(package="katana_sim", executable="sim_node", name="sim_node",
                           parameters=files, output="screen"))
@@ -66,6 +93,10 @@ def generate_launch_description() -> LaunchDescription:
                               description="sim: PyBullet; hardware: a real Katana and camera"),
         DeclareLaunchArgument("params_file", default_value="",
                               description="parameter YAML overlaid on the packaged config"),
+        DeclareLaunchArgument("frames", default_value="katana",
+                              choices=["katana", "robot_state_publisher"],
+                              description="who publishes the arm's frames and robot_description: "
+                              "katana_description's frame_publisher or robot_state_publisher"),
         DeclareLaunchArgument("record", default_value="",
                               description="FILE.mcap: record the run's topics (rosbag2 MCAP)"),
         DeclareLaunchArgument("hardware_params_file",

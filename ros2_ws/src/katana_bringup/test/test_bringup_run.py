@@ -34,8 +34,8 @@ def test_load_params_merges_flattens_and_applies_wildcards(tmp_path):
 
 def test_default_yaml_holds_every_declared_parameter_of_its_nodes(tmp_path):
     params = run.load_params(run.default_params_files("sim"))
-    assert {"sim_node", "pick_place_executor", "perception_node", "block_memory_node",
-            "fovea_node", "curiosity_node"} <= params.keys()
+    assert {"sim_node", "frame_publisher", "pick_place_executor", "perception_node",
+            "block_memory_node", "fovea_node", "curiosity_node"} <= params.keys()
     # the scene, the pick-and-place geometry and the clock once, for every node
     assert set(params["/**"]) == {"world_frame", "block_size", "camera_position", "camera_rpy",
                                   "approach_height", "grasp_offset", "use_sim_time"}
@@ -46,7 +46,7 @@ def test_default_yaml_holds_every_declared_parameter_of_its_nodes(tmp_path):
     rclpy.init(context=ctx)
     try:
         nodes = run.build_nodes("sim", params, ctx, record=tmp_path / "run.mcap")
-        assert len(nodes) == 7
+        assert len(nodes) == 8
         try:
             for node in nodes:
                 builtin = {"use_sim_time", "start_type_description_service"}
@@ -55,7 +55,8 @@ def test_default_yaml_holds_every_declared_parameter_of_its_nodes(tmp_path):
                 assert node.get_parameter("use_sim_time").value is True, name
                 # nothing in the YAML is ignored: every key is a declared parameter
                 assert set(params.get(name, {})) <= declared, name
-                if name in ("perception_node", "block_memory_node", "fovea_node"):
+                if name in ("perception_node", "block_memory_node", "fovea_node",
+                            "frame_publisher"):
                     # every parameter it declares is set: in its section or under /**
                     assert declared <= set(params[name]) | set(params["/**"]), name
                     assert {"world_frame", "block_size", "camera_position",
@@ -118,7 +119,7 @@ def test_invalid_parameter_stops_construction_with_its_name():
 
 def test_main_runs_for_a_bounded_duration_and_rejects_bad_files(tmp_path, capsys):
     assert run.main(["--duration", "0.5", "--layers", "arm"]) == 0
-    assert "sim_node, pick_place_executor" in capsys.readouterr().out
+    assert "sim_node, frame_publisher, pick_place_executor" in capsys.readouterr().out
     bad = [
         (["--params", str(tmp_path / "nope.yaml")], "--params"),
         (["--duration", "-1"], "--duration"),
@@ -157,9 +158,14 @@ def test_launch_file_starts_the_same_nodes_with_a_backend_argument():
     assert {("katana_sim", "sim_node"), ("katana_manipulation", "pick_place_executor"),
             ("katana_driver", "katana_driver_node"), ("katana_camera", "camera_node"),
             ("katana_perception", "perception_node"), ("katana_perception", "block_memory_node"),
-            ("katana_perception", "fovea_node"), ("katana_curiosity", "curiosity_node")} <= nodes
-    # every executable the launch file names is a console script of its package
-    for pkg, exe in nodes:
+            ("katana_perception", "fovea_node"), ("katana_curiosity", "curiosity_node"),
+            ("katana_description", "frame_publisher")} <= nodes
+    # every executable the launch file names is a console script of its package; the one
+    # package from outside the workspace is frames:=robot_state_publisher's
+    external = {(pkg, exe) for pkg, exe in nodes if not (SRC / pkg).is_dir()}
+    assert external == {("robot_state_publisher", "robot_state_publisher")}
+    assert declared["frames"]["default_value"] == "katana"
+    for pkg, exe in nodes - external:
         setup = (SRC / pkg / "setup.py").read_text()
         assert f'"{exe} = ' in setup, (pkg, exe)
     # the same parameter files as katana-run, in the same order
@@ -176,7 +182,8 @@ def test_executables_are_installed_where_ros2_run_looks():
                      ("katana_perception", "block_memory_node"),
                      ("katana_perception", "fovea_node"), ("katana_curiosity", "curiosity_node"),
                      ("katana_paper", "katana-curiosity"), ("katana_paper", "katana-robot"),
-                     ("katana_driver", "katana_driver_node"), ("katana_camera", "camera_node")]:
+                     ("katana_driver", "katana_driver_node"), ("katana_camera", "camera_node"),
+                     ("katana_description", "frame_publisher")]:
         path = Path(prefix) / pkg / "lib" / pkg / exe
         assert path.is_file() and os.access(path, os.X_OK), path
 
