@@ -1,7 +1,8 @@
 """run_recorder: the run's topics into one rosbag2 MCAP file (katana-run --record FILE.mcap).
 
 Subscribes (serialized, never deserialized) to what shows a run: camera images and camera_info
-(throttled to `image_rate_hz`), joint_states, memory/blocks, perception/detections,
+(throttled to `image_rate_hz`), joint_states, /tf and /tf_static (the frame tree, so that a
+player shows the arm, the image and the markers together), memory/blocks, perception/detections,
 curiosity/experience, curiosity/learner_state and the fovea and curiosity markers. Each message
 is stamped with its receive time on the node's clock (sim time with use_sim_time), as
 `ros2 bag record` does.
@@ -13,21 +14,26 @@ import sys
 
 from katana_common.node_runner import run_node
 from katana_common.params import Param, declare_parameters
-from katana_common.qos import EVENT_QOS, JOINT_STATE_QOS, SENSOR_QOS
+from katana_common.qos import EVENT_QOS, JOINT_STATE_QOS, SENSOR_QOS, TF_QOS, TF_STATIC_QOS
 from katana_interfaces.msg import BlockArray, Experience, LearnerState
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, JointState
+from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 from .recording import McapRecording
 
 #: topic, message class, ROS type name, QoS, throttled with the images. State topics too are
 #: taken as events (volatile, depth 100): every change is recorded, none squeezed out by the
-#: depth of 1 that suits a late joiner; the recorder starts with the graph, before them.
+#: depth of 1 that suits a late joiner; the recorder starts with the graph, before them. But
+#: /tf_static is published once, when frame_publisher starts, which katana-run does before the
+#: recorder: it is taken as a late joiner takes it (transient local), as `ros2 bag` does.
 TOPICS = (
     ("camera/image_raw", Image, "sensor_msgs/msg/Image", SENSOR_QOS, True),
     ("camera/camera_info", CameraInfo, "sensor_msgs/msg/CameraInfo", SENSOR_QOS, True),
     ("joint_states", JointState, "sensor_msgs/msg/JointState", JOINT_STATE_QOS, False),
+    ("/tf", TFMessage, "tf2_msgs/msg/TFMessage", TF_QOS, False),
+    ("/tf_static", TFMessage, "tf2_msgs/msg/TFMessage", TF_STATIC_QOS, False),
     ("memory/blocks", BlockArray, "katana_interfaces/msg/BlockArray", EVENT_QOS, False),
     ("perception/detections", BlockArray, "katana_interfaces/msg/BlockArray", EVENT_QOS, False),
     ("curiosity/experience", Experience, "katana_interfaces/msg/Experience", EVENT_QOS, False),
@@ -51,9 +57,9 @@ class RecorderNode(Node):
         self.recording = McapRecording(self.params["path"])
         self._last_image_ns: dict[str, int] = {}
         for topic, cls, type_name, qos, throttled in TOPICS:
-            self.recording.add_topic("/" + topic, type_name)
-            self.create_subscription(
-                cls, topic, self._callback("/" + topic, throttled), qos, raw=True)
+            name = topic if topic.startswith("/") else "/" + topic  # as recorded
+            self.recording.add_topic(name, type_name)
+            self.create_subscription(cls, topic, self._callback(name, throttled), qos, raw=True)
 
     def _callback(self, topic: str, throttled: bool):
         def on_message(data: bytes) -> None:

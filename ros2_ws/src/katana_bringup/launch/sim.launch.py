@@ -39,14 +39,16 @@ def _frame_nodes(frames: str, files: list[str]) -> list:
         return [Node(package="katana_description", executable="frame_publisher",
                      name="frame_publisher", parameters=files, output="screen")]
     params = load_params(files)
-    model = {**params.get("/**", {}), **params.get("frame_publisher", {})}.get(
-        "model", models.DEFAULT_MODEL)
-    description = urdf_path(f"katana_{model}.urdf").read_text(encoding="utf-8")
+    own = {**params.get("/**", {}), **params.get("frame_publisher", {})}
+    description = urdf_path(f"katana_{own.get('model', models.DEFAULT_MODEL)}.urdf").read_text(
+        encoding="utf-8")
     return [
-        # the files' `/**` section gives it use_sim_time; it ignores the names it does not declare
+        # the same URDF and clock as frame_publisher (the scene's names are not its parameters)
         Node(package="robot_state_publisher", executable="robot_state_publisher",
              name="robot_state_publisher",
-             parameters=[*files, {"robot_description": description}], output="screen"),
+             parameters=[{"robot_description": description,
+                          "use_sim_time": bool(own.get("use_sim_time", False))}],
+             output="screen"),
         Node(package="katana_description", executable="frame_publisher",
              name="frame_publisher", parameters=[*files, {"robot_frames": False}],
              output="screen"),

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import ast
+import importlib.util
 import os
 import sys
+import types
 from pathlib import Path
 
 import pytest
@@ -170,6 +172,41 @@ def test_launch_file_starts_the_same_nodes_with_a_backend_argument():
         assert f'"{exe} = ' in setup, (pkg, exe)
     # the same parameter files as katana-run, in the same order
     assert "default_params_files(backend)" in text
+
+
+def _launch_module(monkeypatch, path: Path):
+    """A launch file imported with stand-ins for launch and launch_ros (not on PyPI): each
+    Node(...) is the dict of its keyword arguments."""
+    fakes = {name: types.ModuleType(name) for name in (
+        "launch", "launch.actions", "launch.substitutions", "launch_ros", "launch_ros.actions")}
+    fakes["launch"].LaunchDescription = list
+    fakes["launch.actions"].DeclareLaunchArgument = fakes["launch.actions"].OpaqueFunction = (
+        lambda *a, **k: (a, k))
+    fakes["launch.substitutions"].LaunchConfiguration = lambda name: name
+    fakes["launch_ros.actions"].Node = lambda **kwargs: kwargs
+    for name, module in fakes.items():
+        monkeypatch.setitem(sys.modules, name, module)
+    spec = importlib.util.spec_from_file_location(path.stem.replace(".", "_"), path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_launch_frames_robot_state_publisher_gets_the_same_urdf(monkeypatch, tmp_path):
+    launch = _launch_module(monkeypatch, SRC / "katana_bringup" / "launch" / "sim.launch.py")
+    overlay = tmp_path / "overlay.yaml"
+    overlay.write_text("frame_publisher:\n  ros__parameters:\n    model: 300_6m180\n")
+    files = [str(f) for f in run.default_params_files("sim")] + [str(overlay)]
+    (own,) = launch._frame_nodes("katana", files)
+    assert (own["executable"], own["parameters"]) == ("frame_publisher", files)
+    rsp, scene = launch._frame_nodes("robot_state_publisher", files)
+    assert rsp["executable"] == "robot_state_publisher"
+    (params,) = rsp["parameters"]
+    assert params["robot_description"] == (
+        SRC / "katana_description" / "urdf" / "katana_300_6m180.urdf").read_text()
+    assert params["use_sim_time"] is True  # the sim's clock, as every node of the graph
+    assert scene["executable"] == "frame_publisher"
+    assert scene["parameters"] == [*files, {"robot_frames": False}]
 
 
 def test_executables_are_installed_where_ros2_run_looks():
