@@ -14,6 +14,7 @@ from builtin_interfaces.msg import Time
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from katana_bringup.in_process import InProcessGraph
+from katana_common.params import ParameterError
 from katana_common.qos import JOINT_STATE_QOS, ROBOT_DESCRIPTION_QOS, TF_QOS, TF_STATIC_QOS
 from katana_description import models as m
 from katana_description import urdf_path
@@ -204,3 +205,9 @@ def test_topics_have_robot_state_publishers_qos(graph, listener):
     (sub,) = [i for i in listener.node.get_subscriptions_info_by_topic("/joint_states")
               if i.node_name == "frame_publisher"]
     assert sub.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+
+
+def test_a_missing_extrinsics_file_stops_the_node_at_start_up(tmp_path):
+    with InProcessGraph(threads=2) as g, pytest.raises(ParameterError, match="extrinsics_file"):
+        FramePublisher(context=g.context, parameter_overrides=[
+            Parameter("extrinsics_file", value=str(tmp_path / "missing.yaml"))])
