@@ -22,8 +22,8 @@ from sensor_msgs.msg import Image, JointState
 
 pytestmark = pytest.mark.timeout(120)
 
-EXPECTED_NODES = {"katana_driver_node", "camera_node", "pick_place_executor", "perception_node",
-                  "block_memory_node", "fovea_node", "curiosity_node"}
+EXPECTED_NODES = {"katana_driver_node", "camera_node", "frame_publisher", "pick_place_executor",
+                  "perception_node", "block_memory_node", "fovea_node", "curiosity_node"}
 EXPECTED_ACTIONS = {
     "/arm_controller/follow_joint_trajectory": "control_msgs/action/FollowJointTrajectory",
     "/gripper_controller/gripper_command": "control_msgs/action/GripperCommand",

@@ -21,6 +21,9 @@ EXPECTED_TOPICS = {
     "/joint_states": "sensor_msgs/msg/JointState",
     "/clock": "rosgraph_msgs/msg/Clock",
     "/sim/ground_truth": "katana_interfaces/msg/BlockArray",
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
+    "/robot_description": "std_msgs/msg/String",
 }
 EXPECTED_ACTIONS = {
     "/arm_controller/follow_joint_trajectory": "control_msgs/action/FollowJointTrajectory",

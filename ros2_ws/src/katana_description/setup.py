@@ -19,11 +19,12 @@ setup(
     zip_safe=True,
     maintainer="Katana curiosity maintainers",
     maintainer_email="katana-curiosity@example.org",
-    description="URDF of the Katana arm, table and blocks.",
+    description="URDF of the Katana arm, table and blocks, and the frame publisher.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "katana-urdf-gen = katana_description.urdf_gen:main",
+            "frame_publisher = katana_description.frame_publisher:main",
         ],
     },
 )

@@ -25,6 +25,7 @@ from katana_camera.camera_node import PARAMS as CAMERA_PARAMS
 from katana_common.param_spec import Param, yaml_section
 from katana_common.scene import SCENE_PARAMS
 from katana_curiosity.node_params import PARAMS as CURIOSITY_PARAMS
+from katana_description.frame_publisher import PARAMS as FRAME_PARAMS
 from katana_driver.driver_params import PARAMS as DRIVER_PARAMS
 from katana_manipulation.core.pick_place_types import SIM_MIN_SEGMENT_TIME_S
 from katana_manipulation.pick_place_executor import PARAMS as EXECUTOR_PARAMS
@@ -74,7 +75,12 @@ FILES: dict[str, tuple[str, tuple[Section, ...]]] = {
                 "-- the scene and the pick-and-place geometry every node shares, set once and "
                 "never under one node: the executor plans with approach_height and grasp_offset, "
                 "and the nodes that offer placements compute the arm's reach from them")),
-            Section("pick_place_executor", _own(EXECUTOR_PARAMS)),
+            Section("frame_publisher", _own(FRAME_PARAMS), preface=(
+                "-- the frame tree (katana_description): /tf, /tf_static and robot_description, "
+                "as robot_state_publisher publishes them, plus world -> arm base and the camera "
+                "frames")),
+            Section("pick_place_executor", _own(EXECUTOR_PARAMS), preface=(
+                "-- pick and place (katana_manipulation)")),
             Section("perception_node", _own(PERCEPTION_PARAMS), preface=(
                 "-- perception, block memory and fovea (katana_perception)")),
             Section("block_memory_node", _own(MEMORY_PARAMS)),

@@ -29,6 +29,8 @@ from katana_common.param_files import (
 from katana_common.param_spec import Param
 from katana_curiosity.node_params import PARAMS as CURIOSITY_PARAMS
 from katana_curiosity.node_params import cross_check as curiosity_rule
+from katana_description.frame_publisher import PARAMS as FRAME_PARAMS
+from katana_description.frame_publisher import cross_check as frame_rule
 from katana_driver.driver_params import PARAMS as DRIVER_PARAMS
 from katana_driver.driver_params import cross_check as driver_rule
 from katana_manipulation.pick_place_executor import PARAMS as EXECUTOR_PARAMS
@@ -55,9 +57,9 @@ NODE_NAMES = {
 }
 #: the nodes above the arm, whatever the backend, the recorder and the Foxglove bridge (its
 #: section is checked; --foxglove gives it the host and port)
-GRAPH_NODES = ("pick_place_executor", "perception_node", "block_memory_node", "fovea_node",
-               "curiosity_node", "run_recorder", FOXGLOVE_BRIDGE)
-_LAYER_NODES = {"arm": ("pick_place_executor",),
+GRAPH_NODES = ("frame_publisher", "pick_place_executor", "perception_node", "block_memory_node",
+               "fovea_node", "curiosity_node", "run_recorder", FOXGLOVE_BRIDGE)
+_LAYER_NODES = {"arm": ("frame_publisher", "pick_place_executor"),
                 "perception": ("perception_node", "block_memory_node", "fovea_node"),
                 "curiosity": ("curiosity_node",)}
 RECORDER = "run_recorder"
@@ -78,6 +80,7 @@ NODE_RULES: dict[str, tuple[Sequence[Param], Rule | None]] = {
     "sim_node": (SIM_PARAMS, _sim_rule),
     "katana_driver_node": (DRIVER_PARAMS, driver_rule),
     "camera_node": (CAMERA_PARAMS, None),
+    "frame_publisher": (FRAME_PARAMS, frame_rule),
     "pick_place_executor": (EXECUTOR_PARAMS, executor_rule),
     "perception_node": (PERCEPTION_PARAMS, check_files_and_colors),
     "block_memory_node": (MEMORY_PARAMS, check_files_and_colors),

@@ -1,7 +1,8 @@
 """run_recorder: the run's topics into one rosbag2 MCAP file (katana-run --record FILE.mcap).
 
 Subscribes (serialized, never deserialized) to what shows a run: camera images and camera_info
-(throttled to `image_rate_hz`), joint_states, memory/blocks, perception/detections,
+(throttled to `image_rate_hz`), joint_states, /tf and /tf_static (the frame tree, so that a
+player shows the arm, the image and the markers together), memory/blocks, perception/detections,
 curiosity/experience, curiosity/learner_state and the fovea and curiosity markers. Each message
 is stamped with its receive time on the node's clock (sim time with use_sim_time), as
 `ros2 bag record` does. A topic's channel is made with its first message, carrying the QoS its
@@ -17,12 +18,13 @@ import sys
 
 from katana_common.node_runner import run_node
 from katana_common.params import Param, declare_parameters
-from katana_common.qos import EVENT_QOS, JOINT_STATE_QOS, SENSOR_QOS
+from katana_common.qos import EVENT_QOS, JOINT_STATE_QOS, SENSOR_QOS, TF_QOS, TF_STATIC_QOS
 from katana_interfaces.msg import BlockArray, Experience, LearnerState
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import CameraInfo, Image, JointState
+from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 from . import bag_qos
@@ -30,11 +32,15 @@ from .recording import McapRecording
 
 #: topic, message class, ROS type name, QoS, throttled with the images. State topics too are
 #: taken as events (volatile, depth 100): every change is recorded, none squeezed out by the
-#: depth of 1 that suits a late joiner; the recorder starts with the graph, before them.
+#: depth of 1 that suits a late joiner; the recorder starts with the graph, before them. But
+#: /tf_static is published once, when frame_publisher starts, which katana-run does before the
+#: recorder: it is taken as a late joiner takes it (transient local), as `ros2 bag` does.
 TOPICS = (
     ("camera/image_raw", Image, "sensor_msgs/msg/Image", SENSOR_QOS, True),
     ("camera/camera_info", CameraInfo, "sensor_msgs/msg/CameraInfo", SENSOR_QOS, True),
     ("joint_states", JointState, "sensor_msgs/msg/JointState", JOINT_STATE_QOS, False),
+    ("/tf", TFMessage, "tf2_msgs/msg/TFMessage", TF_QOS, False),
+    ("/tf_static", TFMessage, "tf2_msgs/msg/TFMessage", TF_STATIC_QOS, False),
     ("memory/blocks", BlockArray, "katana_interfaces/msg/BlockArray", EVENT_QOS, False),
     ("perception/detections", BlockArray, "katana_interfaces/msg/BlockArray", EVENT_QOS, False),
     ("curiosity/experience", Experience, "katana_interfaces/msg/Experience", EVENT_QOS, False),

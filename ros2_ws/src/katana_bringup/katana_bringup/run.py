@@ -15,9 +15,9 @@ users with a full ROS 2 install. `--record F.mcap` adds a recorder of the run's 
 MCAP; katana_bringup.recorder_node). `--foxglove [PORT]` adds a live view for the Foxglove app
 (a WebSocket server on 127.0.0.1:8765 by default; katana_bringup.foxglove_bridge).
 
-The graph has three layers: "arm" (the backend's arm and camera nodes, and the pick-and-place
-executor), "perception" (perception, block memory and fovea nodes) and "curiosity" (the
-learner). `--layers` starts a subset, e.g. only the arm for a manipulation check.
+The graph has three layers: "arm" (the backend's arm and camera nodes, the frame publisher
+and the pick-and-place executor), "perception" (perception, block memory and fovea nodes) and
+"curiosity" (the learner). `--layers` starts a subset, e.g. only the arm for a manipulation check.
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ from katana_common.node_runner import EXIT_INVALID_CONFIGURATION, spin_nodes
 from katana_common.param_files import ParamFileError, ParamSet, read_param_files
 from katana_common.params import ParameterError
 from katana_curiosity.curiosity_node import CuriosityNode
+from katana_description.frame_publisher import FramePublisher
 from katana_manipulation.pick_place_executor import PickPlaceExecutor
 from katana_perception.block_memory_node import BlockMemoryNode
 from katana_perception.fovea_node import FoveaNode
@@ -170,6 +171,8 @@ def build_nodes(
     try:
         if "arm" in layers:
             nodes += BACKEND_BUILDERS[backend](params, context)
+            nodes.append(FramePublisher(
+                context=context, parameter_overrides=overrides_for("frame_publisher", params)))
             nodes.append(PickPlaceExecutor(
                 context=context,
                 parameter_overrides=overrides_for("pick_place_executor", params)))

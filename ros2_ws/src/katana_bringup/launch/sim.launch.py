@@ -1,11 +1,17 @@
 """Start the Katana node graph as separate processes (full ROS 2 install: `ros2 launch`).
 
     ros2 launch katana_bringup sim.launch.py [backend:=sim|hardware] [params_file:=FILE]
-        [record:=FILE.mcap] [rviz:=true] [foxglove:=true [foxglove_port:=8765]
-        [foxglove_host:=127.0.0.1]]
+        [record:=FILE.mcap] [frames:=katana|robot_state_publisher] [rviz:=true]
+        [foxglove:=true [foxglove_port:=8765] [foxglove_host:=127.0.0.1]]
 
-The whole graph of docs/DESIGN.md: the arm (sim or hardware), the pick-and-place executor,
-perception, block memory, fovea and the curiosity node.
+The whole graph of docs/DESIGN.md: the arm (sim or hardware), the frame tree, the
+pick-and-place executor, perception, block memory, fovea and the curiosity node.
+
+The frame tree (/tf, /tf_static, robot_description): frames:=katana (the default) runs
+katana_description's frame_publisher, as katana-run does; frames:=robot_state_publisher runs
+robot_state_publisher on the same URDF (katana_<model>.urdf, the model of frame_publisher's
+section of the parameter files) and frame_publisher with robot_frames false, for the frames
+robot_state_publisher does not know: world -> arm base and the camera.
 
 Same nodes and the same parameter files, in the same order, as the all-in-one runner
 (`ros2 run katana_bringup katana-run`, katana_bringup.run.default_params_files): graph.yaml
@@ -26,12 +32,34 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from katana_bringup.live_view import DEFAULT_HOST, DEFAULT_PORT
-from katana_bringup.run import default_params_files
-from katana_description.models import DEFAULT_MODEL, MODELS
+from katana_bringup.run import default_params_files, load_params
+from katana_description import models, urdf_path
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+
+
+def _frame_nodes(frames: str, files: list[str]) -> list:
+    """frame_publisher alone, or robot_state_publisher with frame_publisher for the scene."""
+    if frames == "katana":
+        return [Node(package="katana_description", executable="frame_publisher",
+                     name="frame_publisher", parameters=files, output="screen")]
+    params = load_params(files)
+    own = {**params.get("/**", {}), **params.get("frame_publisher", {})}
+    description = urdf_path(f"katana_{own.get('model', models.DEFAULT_MODEL)}.urdf").read_text(
+        encoding="utf-8")
+    return [
+        # the same URDF and clock as frame_publisher (the scene's names are not its parameters)
+        Node(package="robot_state_publisher", executable="robot_state_publisher",
+             name="robot_state_publisher",
+             parameters=[{"robot_description": description,
+                          "use_sim_time": bool(own.get("use_sim_time", False))}],
+             output="screen"),
+        Node(package="katana_description", executable="frame_publisher",
+             name="frame_publisher", parameters=[*files, {"robot_frames": False}],
+             output="screen"),
+    ]
 
 
 def _flag(context, name: str) -> bool:
@@ -39,27 +67,15 @@ def _flag(context, name: str) -> bool:
 
 
 def _viewers(context, files: list, backend: str) -> list:
-    """rviz2, the Foxglove bridge, and what both need to show the arm (on the graph's clock)."""
-    rviz, foxglove = _flag(context, "rviz"), _flag(context, "foxglove")
+    """rviz2 and the Foxglove bridge (the frames come from _frame_nodes), on the graph's clock."""
     clock = {"use_sim_time": backend == "sim"}
     nodes = []
-    if rviz or foxglove:
-        model = LaunchConfiguration("model").perform(context)
-        share = get_package_share_directory("katana_description")
-        with open(os.path.join(share, "urdf", f"katana_{model}.urdf"), encoding="utf-8") as fh:
-            description = fh.read()
-        nodes += [
-            Node(package="robot_state_publisher", executable="robot_state_publisher",
-                 parameters=[clock, {"robot_description": description}], output="screen"),
-            Node(package="tf2_ros", executable="static_transform_publisher", parameters=[clock],
-                 arguments=["--frame-id", "world", "--child-frame-id", "katana_base_link"]),
-        ]
-    if rviz:
+    if _flag(context, "rviz"):
         nodes.append(Node(package="rviz2", executable="rviz2", parameters=[clock],
                           arguments=["-d", os.path.join(
                               get_package_share_directory("katana_description"), "rviz",
                               "katana.rviz")]))
-    if foxglove:  # as katana-run --foxglove PORT --foxglove-host HOST
+    if _flag(context, "foxglove"):  # as katana-run --foxglove PORT --foxglove-host HOST
         nodes.append(Node(package="katana_bringup", executable="foxglove_bridge",
                           name="foxglove_bridge", output="screen", parameters=[*files, {
                               "port": int(LaunchConfiguration("foxglove_port").perform(context)),
@@ -72,7 +88,7 @@ def _nodes(context) -> list:
     overlay = LaunchConfiguration("params_file").perform(context)
     files = [str(f) for f in default_params_files(backend)] + ([overlay] if overlay else [])
     hardware = LaunchConfiguration("hardware_params_file").perform(context)
-    nodes = []
+    nodes = _frame_nodes(LaunchConfiguration("frames").perform(context), files)
     if backend == "sim":
         nodes.append(Node(package="katana_sim", executable="sim_node", name="sim_node",
                           parameters=files, output="screen"))
@@ -107,6 +123,10 @@ def generate_launch_description() -> LaunchDescription:
                               description="sim: PyBullet; hardware: a real Katana and camera"),
         DeclareLaunchArgument("params_file", default_value="",
                               description="parameter YAML overlaid on the packaged config"),
+        DeclareLaunchArgument("frames", default_value="katana",
+                              choices=["katana", "robot_state_publisher"],
+                              description="who publishes the arm's frames and robot_description: "
+                              "katana_description's frame_publisher or robot_state_publisher"),
         DeclareLaunchArgument("record", default_value="",
                               description="FILE.mcap: record the run's topics (rosbag2 MCAP)"),
         DeclareLaunchArgument("rviz", default_value="false", choices=["true", "false"],
@@ -117,8 +137,6 @@ def generate_launch_description() -> LaunchDescription:
                               description="TCP port of the Foxglove WebSocket server"),
         DeclareLaunchArgument("foxglove_host", default_value=DEFAULT_HOST,
                               description="address it listens on (0.0.0.0: every interface)"),
-        DeclareLaunchArgument("model", default_value=DEFAULT_MODEL, choices=sorted(MODELS),
-                              description="Katana type whose URDF the viewers show"),
         DeclareLaunchArgument("hardware_params_file",
                               default_value=os.path.join(
                                   get_package_share_directory("katana_driver"), "config",

@@ -13,10 +13,11 @@ from pathlib import Path
 
 import pytest
 import rclpy
+from geometry_msgs.msg import TransformStamped
 from katana_bringup.in_process import InProcessGraph
 from katana_bringup.recorder_node import TOPICS, RecorderNode
 from katana_bringup.recording import is_indexed, message_definition, read_recording, repair
-from katana_common.qos import EVENT_QOS, SENSOR_QOS, STATE_QOS
+from katana_common.qos import EVENT_QOS, SENSOR_QOS, STATE_QOS, TF_STATIC_QOS
 from katana_common.testing import private_ros_env
 from katana_interfaces.msg import Block, BlockArray, Experience, LearnerState
 from mcap.reader import make_reader
@@ -27,6 +28,7 @@ from rclpy.parameter import Parameter
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import Image, JointState
+from tf2_msgs.msg import TFMessage
 
 
 def _read(path: Path) -> dict[str, list]:
@@ -118,6 +120,30 @@ def test_a_short_recording_reads_back_with_topics_types_and_counts(tmp_path):
         summary = make_reader(fh).get_summary()
     assert summary is not None and summary.statistics.message_count == 17
     assert summary.chunk_indexes and {c.compression for c in summary.chunk_indexes} == {"zstd"}
+
+
+def test_the_static_frames_published_before_the_recorder_are_recorded(tmp_path):
+    """/tf_static is published once, at the start of the graph (frame_publisher, before the
+    recorder in katana-run): the recorder still gets it, as a late joiner."""
+    path = tmp_path / "run.mcap"
+    static = TransformStamped(child_frame_id="camera_link")
+    static.header.frame_id = "world"
+    static.transform.translation.z = 0.75
+    with InProcessGraph() as g:
+        pub = Node("record_test_static", context=g.context)
+        g.add(pub)
+        pub.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS).publish(
+            TFMessage(transforms=[static]))
+        rec = RecorderNode(context=g.context, parameter_overrides=[
+            Parameter("path", value=str(path))])
+        g.add(rec)
+        g.wait_for(lambda: rec.recording.counts["/tf_static"] == 1)
+        rec.stop()
+    (got,) = _read(path)["/tf_static"]
+    assert got[0] == "tf2_msgs/msg/TFMessage"
+    (t,) = got[1].transforms
+    assert (t.header.frame_id, t.child_frame_id, t.transform.translation.z) == (
+        "world", "camera_link", 0.75)
 
 
 def _env() -> dict:

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import ast
+import importlib.util
 import os
 import sys
+import types
 from pathlib import Path
 
 import pytest
@@ -34,8 +36,8 @@ def test_load_params_merges_flattens_and_applies_wildcards(tmp_path):
 
 def test_default_yaml_holds_every_declared_parameter_of_its_nodes(tmp_path):
     params = run.load_params(run.default_params_files("sim"))
-    assert {"sim_node", "pick_place_executor", "perception_node", "block_memory_node",
-            "fovea_node", "curiosity_node"} <= params.keys()
+    assert {"sim_node", "frame_publisher", "pick_place_executor", "perception_node",
+            "block_memory_node", "fovea_node", "curiosity_node"} <= params.keys()
     # the scene, the pick-and-place geometry and the clock once, for every node
     assert set(params["/**"]) == {"world_frame", "block_size", "camera_position", "camera_rpy",
                                   "approach_height", "grasp_offset", "use_sim_time"}
@@ -46,7 +48,7 @@ def test_default_yaml_holds_every_declared_parameter_of_its_nodes(tmp_path):
     rclpy.init(context=ctx)
     try:
         nodes = run.build_nodes("sim", params, ctx, record=tmp_path / "run.mcap")
-        assert len(nodes) == 7
+        assert len(nodes) == 8
         try:
             for node in nodes:
                 builtin = {"use_sim_time", "start_type_description_service"}
@@ -55,7 +57,8 @@ def test_default_yaml_holds_every_declared_parameter_of_its_nodes(tmp_path):
                 assert node.get_parameter("use_sim_time").value is True, name
                 # nothing in the YAML is ignored: every key is a declared parameter
                 assert set(params.get(name, {})) <= declared, name
-                if name in ("perception_node", "block_memory_node", "fovea_node"):
+                if name in ("perception_node", "block_memory_node", "fovea_node",
+                            "frame_publisher"):
                     # every parameter it declares is set: in its section or under /**
                     assert declared <= set(params[name]) | set(params["/**"]), name
                     assert {"world_frame", "block_size", "camera_position",
@@ -118,7 +121,7 @@ def test_invalid_parameter_stops_construction_with_its_name():
 
 def test_main_runs_for_a_bounded_duration_and_rejects_bad_files(tmp_path, capsys):
     assert run.main(["--duration", "0.5", "--layers", "arm"]) == 0
-    assert "sim_node, pick_place_executor" in capsys.readouterr().out
+    assert "sim_node, frame_publisher, pick_place_executor" in capsys.readouterr().out
     bad = [
         (["--params", str(tmp_path / "nope.yaml")], "--params"),
         (["--duration", "-1"], "--duration"),
@@ -157,14 +160,51 @@ def test_launch_file_starts_the_same_nodes_with_a_backend_argument():
     assert {("katana_sim", "sim_node"), ("katana_manipulation", "pick_place_executor"),
             ("katana_driver", "katana_driver_node"), ("katana_camera", "camera_node"),
             ("katana_perception", "perception_node"), ("katana_perception", "block_memory_node"),
-            ("katana_perception", "fovea_node"), ("katana_curiosity", "curiosity_node")} <= nodes
+            ("katana_perception", "fovea_node"), ("katana_curiosity", "curiosity_node"),
+            ("katana_description", "frame_publisher")} <= nodes
+    assert declared["frames"]["default_value"] == "katana"
     # every executable the launch file names is a console script of its package (the viewers'
-    # full-install packages: test_viewer_configs)
+    # and frames:=robot_state_publisher's full-install packages: test_viewer_configs)
     for pkg, exe in ((p, e) for p, e in nodes if p.startswith("katana_")):
         setup = (SRC / pkg / "setup.py").read_text()
         assert f'"{exe} = ' in setup, (pkg, exe)
     # the same parameter files as katana-run, in the same order
     assert "default_params_files(backend)" in text
+
+
+def _launch_module(monkeypatch, path: Path):
+    """A launch file imported with stand-ins for launch and launch_ros (not on PyPI): each
+    Node(...) is the dict of its keyword arguments."""
+    fakes = {name: types.ModuleType(name) for name in (
+        "launch", "launch.actions", "launch.substitutions", "launch_ros", "launch_ros.actions")}
+    fakes["launch"].LaunchDescription = list
+    fakes["launch.actions"].DeclareLaunchArgument = fakes["launch.actions"].OpaqueFunction = (
+        lambda *a, **k: (a, k))
+    fakes["launch.substitutions"].LaunchConfiguration = lambda name: name
+    fakes["launch_ros.actions"].Node = lambda **kwargs: kwargs
+    for name, module in fakes.items():
+        monkeypatch.setitem(sys.modules, name, module)
+    spec = importlib.util.spec_from_file_location(path.stem.replace(".", "_"), path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_launch_frames_robot_state_publisher_gets_the_same_urdf(monkeypatch, tmp_path):
+    launch = _launch_module(monkeypatch, SRC / "katana_bringup" / "launch" / "sim.launch.py")
+    overlay = tmp_path / "overlay.yaml"
+    overlay.write_text("frame_publisher:\n  ros__parameters:\n    model: 300_6m180\n")
+    files = [str(f) for f in run.default_params_files("sim")] + [str(overlay)]
+    (own,) = launch._frame_nodes("katana", files)
+    assert (own["executable"], own["parameters"]) == ("frame_publisher", files)
+    rsp, scene = launch._frame_nodes("robot_state_publisher", files)
+    assert rsp["executable"] == "robot_state_publisher"
+    (params,) = rsp["parameters"]
+    assert params["robot_description"] == (
+        SRC / "katana_description" / "urdf" / "katana_300_6m180.urdf").read_text()
+    assert params["use_sim_time"] is True  # the sim's clock, as every node of the graph
+    assert scene["executable"] == "frame_publisher"
+    assert scene["parameters"] == [*files, {"robot_frames": False}]
 
 
 def test_executables_are_installed_where_ros2_run_looks():
@@ -178,7 +218,8 @@ def test_executables_are_installed_where_ros2_run_looks():
                      ("katana_perception", "block_memory_node"),
                      ("katana_perception", "fovea_node"), ("katana_curiosity", "curiosity_node"),
                      ("katana_paper", "katana-curiosity"), ("katana_paper", "katana-robot"),
-                     ("katana_driver", "katana_driver_node"), ("katana_camera", "camera_node")]:
+                     ("katana_driver", "katana_driver_node"), ("katana_camera", "camera_node"),
+                     ("katana_description", "frame_publisher")]:
         path = Path(prefix) / pkg / "lib" / pkg / exe
         assert path.is_file() and os.access(path, os.X_OK), path
 

@@ -53,3 +53,31 @@ DIAGNOSTICS_QOS = QoSProfile(
     durability=DurabilityPolicy.VOLATILE,
     reliability=ReliabilityPolicy.RELIABLE,
 )
+
+#: /tf, as tf2_ros's TransformBroadcaster publishes it (tf2_ros DynamicBroadcasterQoS and the
+#: Python TransformBroadcaster: reliable, volatile, depth 100) and robot_state_publisher uses
+TF_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=100,
+    durability=DurabilityPolicy.VOLATILE,
+    reliability=ReliabilityPolicy.RELIABLE,
+)
+
+#: /tf_static, as tf2_ros's StaticTransformBroadcaster publishes it (StaticBroadcasterQoS:
+#: reliable, transient local, depth 1): one message holds every static transform of the
+#: publisher, and a late listener still gets it
+TF_STATIC_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    reliability=ReliabilityPolicy.RELIABLE,
+)
+
+#: /robot_description (std_msgs/String, the URDF), as robot_state_publisher publishes it
+#: (rclcpp::QoS(1).transient_local(): reliable) and RViz and Foxglove subscribe
+ROBOT_DESCRIPTION_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    reliability=ReliabilityPolicy.RELIABLE,
+)

@@ -11,8 +11,8 @@ from pathlib import Path
 SRC = Path(__file__).resolve().parents[2]  # ros2_ws/src
 ROS_ROOTS = ("rclpy", "launch", "launch_ros")
 ROS_SUFFIXES = ("_msgs", "_srvs", "_interfaces")
-NODE_PACKAGES = ("katana_camera", "katana_curiosity", "katana_driver", "katana_manipulation",
-                 "katana_perception", "katana_sim")
+NODE_PACKAGES = ("katana_camera", "katana_curiosity", "katana_description", "katana_driver",
+                 "katana_manipulation", "katana_perception", "katana_sim")
 
 
 

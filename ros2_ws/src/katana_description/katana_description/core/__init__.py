@@ -1,0 +1,1 @@
+"""ROS-free logic of katana_description's node (the frame tree of frame_publisher)."""
