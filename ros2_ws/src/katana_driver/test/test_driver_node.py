@@ -16,6 +16,7 @@ from katana_common.executor import MultiThreadedExecutor
 from katana_common.messages import duration_msg
 from katana_common.params import ParameterError
 from katana_common.testing import call_service, spin_until
+from katana_description import arm_contract as ac
 from katana_driver.core import protocol as p
 from katana_driver.core.encoders import ALL_JOINTS, ARM_JOINTS, EncoderModel
 from katana_driver.katana_driver_node import KatanaDriverNode
@@ -329,6 +330,19 @@ def test_a_trajectory_longer_than_max_trajectory_s_is_refused_at_once(graph):
     assert res.status == GoalStatus.STATUS_ABORTED
     assert res.result.error_code == FollowJointTrajectory.Result.INVALID_GOAL
     assert "max_trajectory_s" in res.result.error_string
+    assert g.driver.worker.state.status[:5] == [p.STATUS_HOLDING] * 5
+
+
+def test_a_goal_of_too_many_points_is_refused_before_its_points_are_read(graph):
+    """Counted first: a hundred thousand points, all at the same time (which the contract would
+    name), are refused for their number; nothing is sent to the controller, the arm holds."""
+    g = graph()
+    g.ready()
+    n = 100_000
+    res = g.run_goal(g.arm, trajectory_goal([(1.0, [-2.5, 1.8, -1.8, -1.5, -2.5])] * n))
+    assert res.status == GoalStatus.STATUS_ABORTED
+    assert res.result.error_code == FollowJointTrajectory.Result.INVALID_GOAL
+    assert f"{n} points; at most {ac.MAX_TRAJECTORY_POINTS}" in res.result.error_string
     assert g.driver.worker.state.status[:5] == [p.STATUS_HOLDING] * 5
 
 

@@ -164,13 +164,17 @@ class SimNode(Node):
 
     def _execute_trajectory(self, goal_handle):
         result = FollowJointTrajectory.Result()
-        try:
-            goal = msgs.trajectory_goal(goal_handle.request)
-            with self.lock:
-                handle = self.world.start_trajectory(goal)
-        except (TypeError, ValueError) as exc:  # values no contract rule expected
-            handle = None
-            result.error_code, result.error_string = ac.INVALID_GOAL, f"bad goal: {exc}"
+        handle = None
+        count = ac.check_point_count(len(goal_handle.request.trajectory.points))
+        if not count.ok:  # before any point is read
+            result.error_code, result.error_string = count.error_code, count.error_string
+        else:
+            try:
+                goal = msgs.trajectory_goal(goal_handle.request)
+                with self.lock:
+                    handle = self.world.start_trajectory(goal)
+            except (TypeError, ValueError) as exc:  # values no contract rule expected
+                result.error_code, result.error_string = ac.INVALID_GOAL, f"bad goal: {exc}"
         if handle is None or handle.outcome.done:
             if handle is not None:
                 result.error_code = handle.outcome.error_code
