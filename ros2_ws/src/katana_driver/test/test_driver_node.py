@@ -9,12 +9,14 @@ import rclpy
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from control_msgs.msg import JointTolerance
+from diagnostic_msgs.msg import DiagnosticArray
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.messages import duration_msg
 from katana_common.params import ParameterError
+from katana_common.qos import DIAGNOSTICS_QOS
 from katana_common.testing import call_service, spin_until
 from katana_description import arm_contract as ac
 from katana_driver.core import protocol as p
@@ -281,6 +283,39 @@ def test_goals_are_refused_clearly_without_a_controller(graph, make_emulator):
     res = g.run_goal(g.arm, trajectory_goal([(1.0, [0.0, 1.0, -1.0, 0.0, 0.0])]))
     assert res.status == GoalStatus.STATUS_ABORTED
     assert "no connection to the Katana controller" in res.result.error_string
+
+
+def _controller_status(g):
+    statuses: list = []
+    g.client.create_subscription(DiagnosticArray, "/diagnostics",
+                                 lambda msg: statuses.extend(msg.status), DIAGNOSTICS_QOS)
+    assert g.spin_until(lambda: statuses, timeout_s=5.0)
+    count = len(statuses)
+    assert g.spin_until(lambda: len(statuses) > count, timeout_s=5.0)  # one after the waits
+    status = statuses[-1]
+    assert status.name.endswith(": controller")
+    return status, {kv.key: kv.value for kv in status.values}
+
+
+def test_diagnostics_report_the_link_the_calibration_and_the_motors(graph):
+    g = graph()
+    g.ready()
+    status, values = _controller_status(g)
+    assert status.level == b"\x00" and status.message == "ready"
+    assert values["connected"] == "True" and values["calibrated"] == "True"
+    transport = g.driver.worker.transport.stats
+    assert int(values["replies"]) > 0 and int(values["timeouts"]) == transport.timeouts
+    assert 0.0 < float(values["reply_latency_median_ms"]) <= float(values["reply_latency_max_ms"])
+    assert [values[f"motor{i}"] for i in range(1, 6)] == ["holding"] * 5
+
+
+def test_diagnostics_report_a_missing_controller_as_an_error(graph, make_emulator):
+    emulator = make_emulator()
+    emulator.stop()
+    g = graph(emulator)
+    status, values = _controller_status(g)
+    assert status.level == b"\x02" and status.message.startswith("no link to the controller")
+    assert values["connected"] == "False" and values["replies"] == "0"
 
 
 @pytest.mark.parametrize(

@@ -18,7 +18,9 @@ import threading
 import time
 
 from control_msgs.action import FollowJointTrajectory, GripperCommand
+from katana_common.diagnostics import Diagnostics
 from katana_common.executor import MultiThreadedExecutor
+from katana_common.health import ClockRatio, pace_health
 from katana_common.node_runner import run_node
 from katana_common.params import ParameterError, declare_parameters
 from katana_description import arm_contract as ac
@@ -64,6 +66,9 @@ class SimNode(Node):
             execute_callback=self._execute_gripper, goal_callback=accept,
             cancel_callback=lambda _g: CancelResponse.ACCEPT, callback_group=group)
         self.create_service(ResetWorld, "~/reset_world", self._reset, callback_group=group)
+        self._pace_meter = ClockRatio(lambda: self.world.time)
+        self.diagnostics = Diagnostics(self, {"physics": lambda: pace_health(
+            self._pace_meter.ratio(), self.rtf, self.world.time)}, hardware_id="pybullet")
         self._thread = threading.Thread(target=self._pace, name="sim_pacing", daemon=True)
         self._thread.start()
         self.get_logger().info(
