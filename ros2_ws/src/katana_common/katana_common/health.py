@@ -72,3 +72,41 @@ def stream_health(what: str, meter: RateMeter, stale_after_s: float = 2.0) -> He
     if age > stale_after_s:
         return Health(WARN, f"no {what} for {age:.1f} s", values)
     return Health(OK, f"{meter.per_second():.1f} {what}/s", values)
+
+
+class ClockRatio:
+    """How fast a clock runs against wall time over the last `window_s` wall seconds (a sim's
+    real-time factor), from (wall, clock) samples taken when asked."""
+
+    def __init__(self, clock: Callable[[], float], window_s: float = 10.0,
+                 now: Callable[[], float] = time.monotonic) -> None:
+        if not window_s > 0.0:
+            raise ValueError(f"window_s must be > 0, got {window_s}")
+        self.clock, self.window_s, self._now = clock, float(window_s), now
+        self._samples: deque[tuple[float, float]] = deque()
+
+    def ratio(self) -> float | None:
+        """Clock seconds per wall second since the oldest sample in the window; None until two
+        samples lie apart in wall time."""
+        wall, clock = self._now(), self.clock()
+        self._samples.append((wall, clock))
+        while len(self._samples) > 2 and self._samples[1][0] <= wall - self.window_s:
+            self._samples.popleft()
+        first_wall, first_clock = self._samples[0]
+        if wall <= first_wall:
+            return None
+        return (clock - first_clock) / (wall - first_wall)
+
+
+def pace_health(ratio: float | None, target: float, sim_time_s: float) -> Health:
+    """A simulation's pace: OK as fast as it can go (`target` 0) or within 10 % of its target
+    real-time factor, WARN when it falls behind (the machine is too slow for the pace)."""
+    values = {"real_time_factor": ratio if ratio is not None else "not measured yet",
+              "target_real_time_factor": target if target > 0 else "as fast as possible",
+              "sim_time_s": sim_time_s}
+    if ratio is None:
+        return Health(OK, "starting", values)
+    if target > 0 and ratio < 0.9 * target:
+        return Health(WARN, f"behind its pace: {ratio:.2f}x wall time, asked {target:g}x",
+                      values)
+    return Health(OK, f"{ratio:.2f}x wall time", values)

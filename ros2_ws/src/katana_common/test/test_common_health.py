@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from katana_common.health import OK, WARN, RateMeter, stream_health
+from katana_common.health import OK, WARN, ClockRatio, RateMeter, pace_health, stream_health
 
 
 class FakeClock:
@@ -54,3 +54,24 @@ def test_a_stream_warns_before_its_first_message_and_when_it_stops() -> None:
 def test_a_window_must_be_positive() -> None:
     with pytest.raises(ValueError, match="window_s"):
         RateMeter(0.0)
+
+
+def test_the_clock_ratio_is_clock_over_wall_time_in_the_window() -> None:
+    wall, sim = FakeClock(), FakeClock()
+    meter = ClockRatio(sim, window_s=5.0, now=wall)
+    assert meter.ratio() is None  # one sample
+    for _ in range(20):  # the sim at 2x wall time, then at 0.5x
+        wall.t += 1.0
+        sim.t += 2.0
+    assert meter.ratio() == pytest.approx(2.0)
+    for _ in range(10):
+        wall.t += 1.0
+        sim.t += 0.5
+        ratio = meter.ratio()
+    assert ratio == pytest.approx(0.5)  # the window holds only the slow part now
+
+
+@pytest.mark.parametrize(("ratio", "target", "level"), [
+    (None, 1.0, OK), (5.0, 0.0, OK), (0.95, 1.0, OK), (0.85, 1.0, WARN), (0.3, 0.0, OK)])
+def test_a_sim_behind_its_pace_warns(ratio, target, level) -> None:
+    assert pace_health(ratio, target, 12.0).level == level

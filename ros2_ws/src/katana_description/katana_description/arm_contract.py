@@ -13,6 +13,8 @@ API (stable; plain Python in, plain Python out):
   may lie) and ``contract.max_accel`` the acceleration limits (rad/s^2) from
   ``acceleration_limits`` (encoders per 10 ms tick squared, motors 1..5). The defaults are the
   driver's (katana_description.models: LIMIT_MARGIN_ENC 200, KNI_MAX_ACCELERATION 2).
+- ``check_point_count(n_points) -> Verdict``: a goal of more than ``MAX_TRAJECTORY_POINTS``
+  (1000) points is refused before its points are read.
 - ``TrajectoryGoal(joint_names, times_s, positions, velocities=None, path_tolerance={},
   goal_tolerance={}, goal_time_tolerance_s=0.0, multi_dof_joints=())``: a
   FollowJointTrajectory goal; ``multi_dof_joints`` names the joints of its multi-DOF parts
@@ -234,6 +236,22 @@ def _check_tolerances(kind: str, tolerances: Tolerances, names: Sequence[str]) -
         seen.add(name)
         if not math.isfinite(value):
             return Verdict(INVALID_GOAL, f"{kind} tolerance of {name} is not finite ({value})")
+    return OK
+
+
+#: The most points a trajectory goal may have. The executor's moves have a handful; the Katana
+#: runs one spline segment per pair of points, each at least one 10 ms tick long, so a goal of
+#: max_trajectory_s (60 s) could not use more than 6,000, and no planner here sends near 1,000.
+MAX_TRAJECTORY_POINTS = 1000
+
+
+def check_point_count(n_points: int) -> Verdict:
+    """OK, or INVALID_GOAL for more than MAX_TRAJECTORY_POINTS points. Called with the length of
+    the goal message's point list before any point is read or converted, so a goal of a
+    hundred thousand points costs its deserialisation by rclpy and nothing more."""
+    if n_points > MAX_TRAJECTORY_POINTS:
+        return Verdict(INVALID_GOAL, f"the trajectory has {n_points} points; at most "
+                       f"{MAX_TRAJECTORY_POINTS} are taken (MAX_TRAJECTORY_POINTS)")
     return OK
 
 

@@ -423,3 +423,10 @@ def test_targets_keep_the_limit_margin_but_the_start_may_not(joint):
     goal = ac.TrajectoryGoal([joint], [3.0], [[hi]])
     assert ac.validate_trajectory(goal, near, wide).ok
     assert not ac.validate_trajectory(goal, near, CONTRACT).ok
+
+
+def test_the_point_count_is_refused_past_its_limit_only() -> None:
+    assert ac.check_point_count(0).ok and ac.check_point_count(ac.MAX_TRAJECTORY_POINTS).ok
+    over = ac.check_point_count(ac.MAX_TRAJECTORY_POINTS + 1)
+    assert over.error_code == ac.INVALID_GOAL
+    assert f"{ac.MAX_TRAJECTORY_POINTS + 1} points" in over.error_string

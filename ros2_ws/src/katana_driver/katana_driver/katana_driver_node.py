@@ -15,6 +15,7 @@ import threading
 import time
 
 from control_msgs.action import FollowJointTrajectory, GripperCommand
+from katana_common.diagnostics import Diagnostics
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.messages import time_msg
 from katana_common.node_runner import run_node
@@ -35,6 +36,7 @@ from katana_driver.core.arm import ArmState, ArmWorker
 from katana_driver.core.encoders import ALL_JOINTS, EncoderModel, variant_of
 from katana_driver.core.transport import make_transport
 from katana_driver.driver_params import PARAMS, cross_check
+from katana_driver.health import driver_health
 
 
 class KatanaDriverNode(Node):
@@ -78,6 +80,8 @@ class KatanaDriverNode(Node):
         self.create_service(SetMotors, "~/set_motors", self._set_motors, callback_group=group)
         self.create_service(ResetWorld, "~/reset_world", self._reset_world, callback_group=group)
         self.create_timer(0.2, self._publish_ready, callback_group=group)
+        self.diagnostics = Diagnostics(self, {"controller": lambda: driver_health(self.worker)},
+                                       hardware_id=f"katana {params['model']}")
         self.worker.start()
         self.get_logger().info(f"Katana {params['model']} over {self.worker.transport.name}; "
                                f"polling at {params['poll_rate']:g} Hz")

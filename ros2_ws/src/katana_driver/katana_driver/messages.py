@@ -21,7 +21,11 @@ RESET_MESSAGE = (
 
 def trajectory_goal(msg: FollowJointTrajectory.Goal) -> ac.TrajectoryGoal | ac.Verdict:
     """The contract's goal, or a refusal for what the contract does not see (the velocity and
-    acceleration parts of the tolerances must be finite too)."""
+    acceleration parts of the tolerances must be finite too, and a goal of too many points is
+    refused before its points are read)."""
+    count = ac.check_point_count(len(msg.trajectory.points))
+    if not count.ok:
+        return count
     for kind, tolerances in (("path", msg.path_tolerance), ("goal", msg.goal_tolerance)):
         for tol in tolerances:
             if not (math.isfinite(tol.velocity) and math.isfinite(tol.acceleration)):

@@ -9,13 +9,16 @@ import rclpy
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from control_msgs.msg import JointTolerance
+from diagnostic_msgs.msg import DiagnosticArray
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.messages import duration_msg
 from katana_common.params import ParameterError
+from katana_common.qos import DIAGNOSTICS_QOS
 from katana_common.testing import call_service, spin_until
+from katana_description import arm_contract as ac
 from katana_driver.core import protocol as p
 from katana_driver.core.encoders import ALL_JOINTS, ARM_JOINTS, EncoderModel
 from katana_driver.katana_driver_node import KatanaDriverNode
@@ -282,6 +285,39 @@ def test_goals_are_refused_clearly_without_a_controller(graph, make_emulator):
     assert "no connection to the Katana controller" in res.result.error_string
 
 
+def _controller_status(g):
+    statuses: list = []
+    g.client.create_subscription(DiagnosticArray, "/diagnostics",
+                                 lambda msg: statuses.extend(msg.status), DIAGNOSTICS_QOS)
+    assert g.spin_until(lambda: statuses, timeout_s=5.0)
+    count = len(statuses)
+    assert g.spin_until(lambda: len(statuses) > count, timeout_s=5.0)  # one after the waits
+    status = statuses[-1]
+    assert status.name.endswith(": controller")
+    return status, {kv.key: kv.value for kv in status.values}
+
+
+def test_diagnostics_report_the_link_the_calibration_and_the_motors(graph):
+    g = graph()
+    g.ready()
+    status, values = _controller_status(g)
+    assert status.level == b"\x00" and status.message == "ready"
+    assert values["connected"] == "True" and values["calibrated"] == "True"
+    transport = g.driver.worker.transport.stats
+    assert int(values["replies"]) > 0 and int(values["timeouts"]) == transport.timeouts
+    assert 0.0 < float(values["reply_latency_median_ms"]) <= float(values["reply_latency_max_ms"])
+    assert [values[f"motor{i}"] for i in range(1, 6)] == ["holding"] * 5
+
+
+def test_diagnostics_report_a_missing_controller_as_an_error(graph, make_emulator):
+    emulator = make_emulator()
+    emulator.stop()
+    g = graph(emulator)
+    status, values = _controller_status(g)
+    assert status.level == b"\x02" and status.message.startswith("no link to the controller")
+    assert values["connected"] == "False" and values["replies"] == "0"
+
+
 @pytest.mark.parametrize(
     ("model", "transport", "why"),
     [("300_6m180", "serial", "81408 ticks per cycle"), ("400_6m180", "tcp", "G\\+128")],
@@ -329,6 +365,19 @@ def test_a_trajectory_longer_than_max_trajectory_s_is_refused_at_once(graph):
     assert res.status == GoalStatus.STATUS_ABORTED
     assert res.result.error_code == FollowJointTrajectory.Result.INVALID_GOAL
     assert "max_trajectory_s" in res.result.error_string
+    assert g.driver.worker.state.status[:5] == [p.STATUS_HOLDING] * 5
+
+
+def test_a_goal_of_too_many_points_is_refused_before_its_points_are_read(graph):
+    """Counted first: a hundred thousand points, all at the same time (which the contract would
+    name), are refused for their number; nothing is sent to the controller, the arm holds."""
+    g = graph()
+    g.ready()
+    n = 100_000
+    res = g.run_goal(g.arm, trajectory_goal([(1.0, [-2.5, 1.8, -1.8, -1.5, -2.5])] * n))
+    assert res.status == GoalStatus.STATUS_ABORTED
+    assert res.result.error_code == FollowJointTrajectory.Result.INVALID_GOAL
+    assert f"{n} points; at most {ac.MAX_TRAJECTORY_POINTS}" in res.result.error_string
     assert g.driver.worker.state.status[:5] == [p.STATUS_HOLDING] * 5
 
 

@@ -18,7 +18,9 @@ import threading
 import time
 
 from control_msgs.action import FollowJointTrajectory, GripperCommand
+from katana_common.diagnostics import Diagnostics
 from katana_common.executor import MultiThreadedExecutor
+from katana_common.health import ClockRatio, pace_health
 from katana_common.node_runner import run_node
 from katana_common.params import ParameterError, declare_parameters
 from katana_description import arm_contract as ac
@@ -64,6 +66,9 @@ class SimNode(Node):
             execute_callback=self._execute_gripper, goal_callback=accept,
             cancel_callback=lambda _g: CancelResponse.ACCEPT, callback_group=group)
         self.create_service(ResetWorld, "~/reset_world", self._reset, callback_group=group)
+        self._pace_meter = ClockRatio(lambda: self.world.time)
+        self.diagnostics = Diagnostics(self, {"physics": lambda: pace_health(
+            self._pace_meter.ratio(), self.rtf, self.world.time)}, hardware_id="pybullet")
         self._thread = threading.Thread(target=self._pace, name="sim_pacing", daemon=True)
         self._thread.start()
         self.get_logger().info(
@@ -164,13 +169,17 @@ class SimNode(Node):
 
     def _execute_trajectory(self, goal_handle):
         result = FollowJointTrajectory.Result()
-        try:
-            goal = msgs.trajectory_goal(goal_handle.request)
-            with self.lock:
-                handle = self.world.start_trajectory(goal)
-        except (TypeError, ValueError) as exc:  # values no contract rule expected
-            handle = None
-            result.error_code, result.error_string = ac.INVALID_GOAL, f"bad goal: {exc}"
+        handle = None
+        count = ac.check_point_count(len(goal_handle.request.trajectory.points))
+        if not count.ok:  # before any point is read
+            result.error_code, result.error_string = count.error_code, count.error_string
+        else:
+            try:
+                goal = msgs.trajectory_goal(goal_handle.request)
+                with self.lock:
+                    handle = self.world.start_trajectory(goal)
+            except (TypeError, ValueError) as exc:  # values no contract rule expected
+                result.error_code, result.error_string = ac.INVALID_GOAL, f"bad goal: {exc}"
         if handle is None or handle.outcome.done:
             if handle is not None:
                 result.error_code = handle.outcome.error_code

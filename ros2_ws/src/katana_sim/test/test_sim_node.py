@@ -11,9 +11,11 @@ from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from control_msgs.msg import JointComponentTolerance
+from diagnostic_msgs.msg import DiagnosticArray
 from katana_common.action_client import ActionClient
-from katana_common.qos import JOINT_STATE_QOS, SENSOR_QOS, STATE_QOS
+from katana_common.qos import DIAGNOSTICS_QOS, JOINT_STATE_QOS, SENSOR_QOS, STATE_QOS
 from katana_common.testing import wait_until
+from katana_description import arm_contract as ac
 from katana_description import models as m
 from katana_interfaces.msg import BlockArray
 from katana_interfaces.srv import ResetWorld
@@ -123,6 +125,32 @@ def test_bad_trajectories_are_refused_and_the_node_goes_on(graph, names, points,
     # goal, with the arm still parked at pan -3.0
     ok = _send(graph["arm"], _traj(["katana_motor1_pan_joint"], [[0.1]], [6.0]))
     assert ok.result.error_code == 0, ok.result.error_string
+
+
+def test_a_goal_of_too_many_points_is_refused_before_its_points_are_read(graph):
+    """A hundred thousand points, each with a NaN the contract would name: the refusal is about
+    the count (checked first), and the node goes on."""
+    n = 100_000
+    goal = _traj(["katana_motor1_pan_joint"], [[math.nan]] * n, [0.001 * (i + 1) for i in range(n)])
+    res = _send(graph["arm"], goal)
+    assert res.status == GoalStatus.STATUS_ABORTED
+    assert res.result.error_code == FollowJointTrajectory.Result.INVALID_GOAL
+    assert f"{n} points; at most {ac.MAX_TRAJECTORY_POINTS}" in res.result.error_string
+    ok = _send(graph["arm"], _traj(["katana_motor1_pan_joint"], [[0.1]], [6.0]))
+    assert ok.result.error_code == 0, ok.result.error_string
+
+
+def test_the_sim_reports_its_pace_on_diagnostics(graph):
+    """Fast mode: OK, as fast as it can go, with the simulated time it has reached."""
+    statuses: list = []
+    graph["probe"].create_subscription(DiagnosticArray, "/diagnostics",
+                                       lambda msg: statuses.extend(msg.status), DIAGNOSTICS_QOS)
+    assert wait_until(lambda: len(statuses) >= 2, 10.0), "two statuses (about 2 s)"
+    status = statuses[-1]
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.name == "sim_node: physics" and status.level == b"\x00"
+    assert values["target_real_time_factor"] == "as fast as possible"
+    assert float(values["sim_time_s"]) >= 0.0 and float(values["real_time_factor"]) >= 0.0
 
 
 def _multi_dof_joint(goal: FollowJointTrajectory.Goal) -> None:

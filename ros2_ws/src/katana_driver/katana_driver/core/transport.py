@@ -20,7 +20,8 @@ import socket
 import threading
 import time
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, field
 
 import serial
 
@@ -59,6 +60,12 @@ class LinkStats:
     retries: int = 0
     timeouts: int = 0
     crc_errors: int = 0
+    replies: int = 0  # valid replies, whose request-to-reply times `latency_s` keeps (last 100)
+    latency_s: deque = field(default_factory=lambda: deque(maxlen=100))
+
+    def note_reply(self, seconds: float) -> None:
+        self.replies += 1
+        self.latency_s.append(seconds)
 
 
 class Transport(ABC):
@@ -159,6 +166,7 @@ class Transport(ABC):
                         problems.append("no reply to the resynchronising echo")
                         continue
                     self._dirty = False
+                sent = time.monotonic()
                 self._guarded(self._write, frame)
                 data = self._guarded(self._read_until, 1, time.monotonic() + self.timeout)
                 if not data:
@@ -176,10 +184,13 @@ class Transport(ABC):
                     problems.append(f"short reply ({len(data)} of {reply_len + 2} bytes)")
                     continue
                 try:
-                    return check_reply(data, reply_len)
+                    reply = check_reply(data, reply_len)
                 except CrcError:
                     self.stats.crc_errors += 1
                     problems.append("bad CRC")
+                else:
+                    self.stats.note_reply(time.monotonic() - sent)
+                    return reply
             self._dirty = True
             raise TransportError(
                 f"{self.name}: no valid reply to '{letter}' after {self.retries + 1} attempts "
@@ -200,6 +211,7 @@ class Transport(ABC):
                     raise NoReply(f"{self.name}: the controller does not answer; '{letter}' "
                                   "not sent")
                 self._dirty = False
+            sent = time.monotonic()
             self._guarded(self._write, frame)
             deadline = time.monotonic() + self.timeout
             data = self._guarded(self._read_until, 1, deadline)
@@ -211,10 +223,12 @@ class Transport(ABC):
                 data += self._guarded(self._read_until, reply_len + 2 - len(data), deadline)
             if len(data) == reply_len + 2:
                 try:
-                    return check_reply(data, reply_len)
+                    reply = check_reply(data, reply_len)
                 except CrcError:
                     self.stats.crc_errors += 1
                     return None  # it answered: the command was taken
+                self.stats.note_reply(time.monotonic() - sent)
+                return reply
             self.stats.timeouts += 1
             late = self._guarded(self._resync_collect)
             if late is None:
