@@ -58,13 +58,14 @@ def build_layout(max_height: int = _DEFAULTS["max_height"],
             "followTf": FRAME,
             "followMode": "follow-pose",
             "scene": {"transforms": {"showLabel": False}},
-            "topics": {"/fovea/markers": {"visible": True},
+            "topics": {"/memory/markers": {"visible": True},
+                       "/fovea/markers": {"visible": True},
                        "/curiosity/markers": {"visible": True}},
             "layers": {"grid": {"layerId": "foxglove.Grid", "visible": True,
                                 "frameLocked": True, "size": 1, "divisions": 10,
                                 "position": [0, 0, 0], "rotation": [0, 0, 0]},
-                       # the arm, where robot_state_publisher runs (sim.launch.py on a full
-                       # install): its model from robot_description, its links from /tf
+                       # the arm: its model from robot_description, its links from /tf
+                       # (frame_publisher, or robot_state_publisher on a full install)
                        "urdf": {"layerId": "foxglove.Urdf", "visible": True,
                                 "sourceType": "topic", "topic": "/robot_description"}},
             "cameraState": {"perspective": True, "distance": 1.2, "phi": 50,

@@ -3,8 +3,8 @@
 Subscribes (serialized, never deserialized) to what shows a run: camera images and camera_info
 (throttled to `image_rate_hz`), joint_states, /tf and /tf_static (the frame tree, so that a
 player shows the arm, the image and the markers together), memory/blocks, perception/detections,
-curiosity/experience, curiosity/learner_state and the fovea and curiosity markers. Each message
-is stamped with its receive time on the node's clock (sim time with use_sim_time), as
+curiosity/experience, curiosity/learner_state and the block, fovea and curiosity markers. Each
+message is stamped with its receive time on the node's clock (sim time with use_sim_time), as
 `ros2 bag record` does. A topic's channel is made with its first message, carrying the QoS its
 publishers offer (from the ROS graph, as rosbag2 records them), so that playback offers the
 same (a transient-local topic stays transient local). Every `flush_period_s` of wall time the
@@ -46,6 +46,7 @@ TOPICS = (
     ("curiosity/experience", Experience, "katana_interfaces/msg/Experience", EVENT_QOS, False),
     ("curiosity/learner_state", LearnerState, "katana_interfaces/msg/LearnerState", EVENT_QOS,
      False),
+    ("memory/markers", MarkerArray, "visualization_msgs/msg/MarkerArray", EVENT_QOS, False),
     ("fovea/markers", MarkerArray, "visualization_msgs/msg/MarkerArray", EVENT_QOS, False),
     ("curiosity/markers", MarkerArray, "visualization_msgs/msg/MarkerArray", EVENT_QOS, False),
 )

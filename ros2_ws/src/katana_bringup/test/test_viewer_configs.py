@@ -108,7 +108,8 @@ def test_the_layout_has_the_panels_of_a_run():
     assert {"3D", "Image", "Plot", "RawMessages", "DiagnosticSummary", "Tab"} <= set(kinds)
     cfg = layout["configById"]
     assert cfg["3D!scene"]["followTf"] == "world"
-    assert set(cfg["3D!scene"]["topics"]) == {"/fovea/markers", "/curiosity/markers"}
+    assert set(cfg["3D!scene"]["topics"]) == {"/memory/markers", "/fovea/markers",
+                                              "/curiosity/markers"}
     images = {c["imageMode"]["imageTopic"] for k, c in cfg.items() if k.startswith("Image!")}
     assert images == {"/camera/image_raw", "/perception/debug_image"}
     assert cfg["RawMessages!experience"]["topicPath"] == "/curiosity/experience"
@@ -210,7 +211,7 @@ def test_the_rviz_view_shows_the_arm_tf_camera_and_markers_in_world():
     assert displays["RobotModel"] == {"/robot_description"}
     assert displays["TF"] == {None}
     assert displays["Image"] == {"/camera/image_raw"}
-    assert displays["MarkerArray"] == {"/fovea/markers", "/curiosity/markers"}
+    assert displays["MarkerArray"] == {"/memory/markers", "/fovea/markers", "/curiosity/markers"}
     named = {t for ts in displays.values() for t in ts if t}
     assert named <= graph_topics()
 

@@ -3,7 +3,8 @@
 Subscribes perception/detections (what the camera sees now), curiosity/experience (where an
 experiment put a block and whether it stayed) and camera/camera_info (to locate a seen block
 on the plane of its remembered level). Publishes memory/blocks (transient local) after every
-detection frame and every experience, stamped with the image time it reflects.
+detection frame and every experience, stamped with the image time it reflects, and the same
+as memory/markers (a box per block, for RViz and Foxglove).
 """
 
 from __future__ import annotations
@@ -19,9 +20,10 @@ from katana_interfaces.msg import BlockArray, Experience
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
+from visualization_msgs.msg import MarkerArray
 
 from .core.memory import BlockMemory, MemoryParams
-from .messages import blocks_to_msg, node_calibration, seen_from_msg, yaw_of
+from .messages import block_markers, blocks_to_msg, node_calibration, seen_from_msg, yaw_of
 from .perception_params import EXTRINSICS_FILE, check_files_and_colors
 
 #: experiences placing a block farther than this from the pan axis are refused, m
@@ -52,6 +54,7 @@ class BlockMemoryNode(Node):
         self.memory: BlockMemory | None = None
         self.last_stamp = None
         self.pub = self.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
+        self.marker_pub = self.create_publisher(MarkerArray, "memory/markers", STATE_QOS)
         self.create_subscription(BlockArray, "perception/detections", self.on_detections,
                                  EVENT_QOS)
         self.create_subscription(Experience, "curiosity/experience", self.on_experience,
@@ -142,7 +145,9 @@ class BlockMemoryNode(Node):
             self.get_logger().error(f"not published: non-finite pose of {bad}",
                                     throttle_duration_sec=5.0)
             blocks = [b for b in blocks if b.id not in bad]
-        self.pub.publish(blocks_to_msg(blocks, header))
+        msg = blocks_to_msg(blocks, header)
+        self.pub.publish(msg)
+        self.marker_pub.publish(block_markers(msg))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -11,9 +11,11 @@ from geometry_msgs.msg import Pose, Vector3
 from katana_interfaces.msg import Block as BlockMsg
 from katana_interfaces.msg import BlockArray, FoveaInstance
 from sensor_msgs.msg import CameraInfo, Image
-from std_msgs.msg import Header
+from std_msgs.msg import ColorRGBA, Header
+from visualization_msgs.msg import Marker, MarkerArray
 
 from .core.calibration import Calibration, load_extrinsics_yaml
+from .core.colors import NOMINAL_RGB
 from .core.fovea import Instance
 from .core.judge import Placement
 from .core.memory import Block, Seen, footprint_overlap, top_height
@@ -178,6 +180,27 @@ def block_to_msg(b: Block) -> BlockMsg:
 
 def blocks_to_msg(blocks: Iterable[Block], header: Header) -> BlockArray:
     return BlockArray(header=header, blocks=[block_to_msg(b) for b in blocks])
+
+
+def block_markers(msg: BlockArray) -> MarkerArray:
+    """memory/blocks as RViz and Foxglove draw it: a box per block at its pose and size, in its
+    colour (grey when the colour has no nominal one), and its id above it; the previous
+    markers deleted first, so a block gone from memory goes from the view too."""
+    out = MarkerArray(markers=[Marker(header=msg.header, ns="blocks", action=Marker.DELETEALL)])
+    for k, b in enumerate(msg.blocks):
+        r, g, bl = NOMINAL_RGB.get(b.color, (0.5, 0.5, 0.5))
+        box = Marker(header=msg.header, ns="blocks", id=2 * k, type=Marker.CUBE,
+                     action=Marker.ADD, pose=b.pose, color=ColorRGBA(r=r, g=g, b=bl, a=0.9))
+        box.scale.x, box.scale.y, box.scale.z = b.size.x, b.size.y, b.size.z
+        label = Marker(header=msg.header, ns="blocks", id=2 * k + 1,
+                       type=Marker.TEXT_VIEW_FACING, action=Marker.ADD, text=b.id,
+                       color=ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0))
+        label.pose.position.x, label.pose.position.y = b.pose.position.x, b.pose.position.y
+        label.pose.position.z = b.pose.position.z + b.size.z
+        label.pose.orientation.w = 1.0
+        label.scale.z = 0.012
+        out.markers += [box, label]
+    return out
 
 
 def blocks_from_msg(msg: BlockArray) -> list[Block]:

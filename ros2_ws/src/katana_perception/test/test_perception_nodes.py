@@ -44,6 +44,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
+from visualization_msgs.msg import Marker, MarkerArray
 
 CALIB = Calibration.overhead_default()
 _ns = itertools.count()
@@ -236,6 +237,34 @@ def detections_msg(scene, levels=None):
     dets = Segmenter().segment(rgb, CALIB, levels)
     return BlockArray(header=Header(frame_id="world"),
                       blocks=[detection_to_msg(d, CALIB) for d in dets])
+
+
+def test_block_memory_draws_each_remembered_block_as_a_box(ros):
+    """memory/markers (for RViz and Foxglove) holds, after a delete-all, one box per block of
+    memory/blocks at its pose and size in the world frame, and its id above it."""
+    ros.make(BlockMemoryNode)
+    pub = ros.helper.create_publisher(BlockArray, "perception/detections", 10)
+    world = ros.collect(BlockArray, "memory/blocks", STATE_QOS)
+    markers = ros.collect(MarkerArray, "memory/markers", STATE_QOS)
+    assert ros.spin_until(lambda: pub.get_subscription_count() > 0)
+    scatter = detections_msg(SCATTER)
+    for _ in range(50):
+        ros.camera_info()
+        pub.publish(scatter)
+        if ros.spin_until(lambda: world and markers, timeout_s=0.3):
+            break
+    assert ros.spin_until(lambda: len(markers) >= len(world))
+    blocks, drawn = world[-1].blocks, markers[-1].markers
+    assert drawn[0].action == Marker.DELETEALL
+    boxes = [m for m in drawn if m.type == Marker.CUBE]
+    labels = {m.text: m for m in drawn if m.type == Marker.TEXT_VIEW_FACING}
+    assert len(boxes) == len(blocks) == 4
+    for box, block in zip(boxes, blocks, strict=True):
+        assert box.header.frame_id == "world" and box.pose == block.pose
+        assert (box.scale.x, box.scale.y, box.scale.z) == (
+            block.size.x, block.size.y, block.size.z)
+        assert labels[block.id].pose.position.z > block.pose.position.z
+    assert len({m.id for m in drawn[1:]}) == len(drawn) - 1
 
 
 def test_block_memory_node(ros):
