@@ -13,11 +13,11 @@ backend_hardware.yaml hold only rclpy's use_sim_time and are written by hand.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import textwrap
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,8 @@ from katana_perception.block_memory_node import PARAMS as MEMORY_PARAMS
 from katana_perception.fovea_node import PARAMS as FOVEA_PARAMS
 from katana_perception.perception_node import PARAMS as PERCEPTION_PARAMS
 from katana_sim.sim_params import PARAMS as SIM_PARAMS
+
+from . import generated
 
 _SRC = Path(__file__).resolve().parents[2]
 #: what graph.yaml sets once, under `/**`, for every node (the scene and the pick-and-place
@@ -136,26 +138,18 @@ def render(name: str) -> str:
     return "\n".join(parts)
 
 
+def _files() -> dict[Path, Callable[[], str]]:
+    return {path_of(name): partial(render, name) for name in FILES}
+
+
 def stale() -> list[str]:
     """The generated files whose text differs from what the specs give."""
-    return [name for name in FILES
-            if not path_of(name).is_file() or path_of(name).read_text() != render(name)]
+    return [path.name for path in generated.stale(_files())]
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m katana_bringup.config_files",
-                                     description=__doc__.split("\n\n")[0])
-    parser.add_argument("--write", action="store_true", help="rewrite the stale files")
-    args = parser.parse_args(argv)
-    names = stale()
-    if args.write:
-        for name in names:
-            path_of(name).write_text(render(name))
-            print(f"wrote {path_of(name)}")
-        return 0
-    for name in names:
-        print(f"{path_of(name)} differs from its nodes' specs: run with --write")
-    return 1 if names else 0
+    return generated.write_or_check("python -m katana_bringup.config_files",
+                                    __doc__.split("\n\n")[0], _files(), "its nodes' specs", argv)
 
 
 if __name__ == "__main__":

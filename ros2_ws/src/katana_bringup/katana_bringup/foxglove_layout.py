@@ -14,13 +14,14 @@ so that it follows the learner's size (curiosity_node's max_height and n_actions
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 from typing import Any
 
 from katana_curiosity.node_params import PARAMS as CURIOSITY_PARAMS
+
+from . import generated
 
 FILE_NAME = "katana.foxglove-layout.json"
 LEARNER = "/curiosity/learner_state"
@@ -132,19 +133,9 @@ def packaged_path() -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m katana_bringup.foxglove_layout",
-                                     description=__doc__.split("\n\n")[0])
-    parser.add_argument("--write", action="store_true", help="rewrite the packaged layout")
-    args = parser.parse_args(argv)
-    path = packaged_path()
-    if args.write:
-        path.write_text(render())
-        print(f"wrote {path}")
-        return 0
-    if not path.is_file() or path.read_text() != render():
-        print(f"{path} differs from katana_bringup.foxglove_layout: run with --write")
-        return 1
-    return 0
+    return generated.write_or_check("python -m katana_bringup.foxglove_layout",
+                                    __doc__.split("\n\n")[0], {packaged_path(): render},
+                                    "katana_bringup.foxglove_layout", argv)
 
 
 if __name__ == "__main__":

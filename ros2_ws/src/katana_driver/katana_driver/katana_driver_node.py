@@ -17,7 +17,7 @@ import time
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from katana_common.diagnostics import Diagnostics
 from katana_common.executor import MultiThreadedExecutor
-from katana_common.messages import time_msg
+from katana_common.messages import time_msg, trajectory_goal
 from katana_common.node_runner import run_node
 from katana_common.params import declare_parameters
 from katana_common.qos import JOINT_STATE_QOS, STATE_QOS
@@ -166,7 +166,7 @@ class KatanaDriverNode(Node):
             return ""
 
     def _execute_arm(self, goal_handle) -> FollowJointTrajectory.Result:
-        goal = msgs.trajectory_goal(goal_handle.request)
+        goal = trajectory_goal(goal_handle.request)
         busy = "" if isinstance(goal, ac.Verdict) else self._claim(arm=True)
         if isinstance(goal, ac.Verdict) or busy:
             refusal = goal if not busy else ac.Verdict(ac.INVALID_GOAL, busy)

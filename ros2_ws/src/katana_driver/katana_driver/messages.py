@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import math
-
 from control_msgs.action import FollowJointTrajectory, GripperCommand
-from katana_common.messages import duration_msg, multi_dof_joints, to_seconds
+from katana_common.messages import duration_msg
 from katana_description import arm_contract as ac
 from katana_description import gripper_contract as gc
 from trajectory_msgs.msg import JointTrajectoryPoint
@@ -17,31 +15,6 @@ RESET_MESSAGE = (
     "hardware backend: the blocks cannot be reset by software; an operator must scatter them "
     "by hand in the play area, then continue"
 )
-
-
-def trajectory_goal(msg: FollowJointTrajectory.Goal) -> ac.TrajectoryGoal | ac.Verdict:
-    """The contract's goal, or a refusal for what the contract does not see (the velocity and
-    acceleration parts of the tolerances must be finite too, and a goal of too many points is
-    refused before its points are read)."""
-    count = ac.check_point_count(len(msg.trajectory.points))
-    if not count.ok:
-        return count
-    for kind, tolerances in (("path", msg.path_tolerance), ("goal", msg.goal_tolerance)):
-        for tol in tolerances:
-            if not (math.isfinite(tol.velocity) and math.isfinite(tol.acceleration)):
-                why = f"{kind} tolerance of {tol.name!r} is not finite"
-                return ac.Verdict(ac.INVALID_GOAL, why)
-    points = msg.trajectory.points
-    return ac.TrajectoryGoal(
-        joint_names=list(msg.trajectory.joint_names),
-        times_s=[to_seconds(pt.time_from_start) for pt in points],
-        positions=[list(pt.positions) for pt in points],
-        velocities=[list(pt.velocities) for pt in points],
-        path_tolerance=[(t.name, t.position) for t in msg.path_tolerance],
-        goal_tolerance=[(t.name, t.position) for t in msg.goal_tolerance],
-        goal_time_tolerance_s=to_seconds(msg.goal_time_tolerance),
-        multi_dof_joints=multi_dof_joints(msg),
-    )
 
 
 def trajectory_feedback(fb: TrajectoryFeedback, stamp) -> FollowJointTrajectory.Feedback:

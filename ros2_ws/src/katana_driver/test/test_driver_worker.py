@@ -281,6 +281,15 @@ def test_a_refused_back_off_ends_set_up_with_the_arm_frozen(make_emulator, worke
     assert any(level == "error" and "set-up stopped" in t for level, t in w.logs)
 
 
+def _play_to_the_end(w, emulator, plan, goal, timeout_s: float) -> None:
+    """Send every segment of `plan`; the arm ends at `goal`, no segment taken twice."""
+    with w.worker.busy():
+        stream = w.worker.start_trajectory(plan)
+        stream.finished_sending.result(timeout=timeout_s)
+    assert w.wait(lambda: w.worker.state.positions[:5] == pytest.approx(goal, abs=2e-3))
+    assert emulator.model.duplicated_segments == 0
+
+
 def test_a_lost_segment_reply_counts_as_taken_while_the_motors_report_16(make_emulator,
                                                                          worker_for):
     """KNI's MSF_NORMOPSTAT, 16, is "moving (polymb not full)": a controller reporting it for
@@ -302,12 +311,8 @@ def test_a_lost_segment_reply_counts_as_taken_while_the_motors_report_16(make_em
     client.send_spline_all = send
     goal = [-1.5, 1.2, -1.0, -0.5, -1.5]
     plan = plan_trajectory(MODEL, w.worker.state.encoders, [3.0], [goal])
-    with w.worker.busy():
-        stream = w.worker.start_trajectory(plan)
-        stream.finished_sending.result(timeout=15)
+    _play_to_the_end(w, emulator, plan, goal, timeout_s=15)
     assert any("segment 2 was taken" in t for _, t in w.logs)
-    assert w.wait(lambda: w.worker.state.positions[:5] == pytest.approx(goal, abs=2e-3))
-    assert emulator.model.duplicated_segments == 0
 
 
 def test_a_full_move_buffer_is_waited_out_before_the_next_segment(make_emulator, worker_for):
@@ -321,12 +326,8 @@ def test_a_full_move_buffer_is_waited_out_before_the_next_segment(make_emulator,
     goal = [-2.0, 1.5, -1.5, -1.0, -2.0]
     plan = plan_trajectory(MODEL, w.worker.state.encoders, [6.0], [goal])
     assert len(plan.segments) == 12
-    with w.worker.busy():
-        stream = w.worker.start_trajectory(plan)
-        stream.finished_sending.result(timeout=20)
+    _play_to_the_end(w, emulator, plan, goal, timeout_s=20)
     assert any("move buffer is full (152): waiting" in t for _, t in w.logs)
-    assert w.wait(lambda: w.worker.state.positions[:5] == pytest.approx(goal, abs=2e-3))
-    assert emulator.model.duplicated_segments == 0
 
 
 def test_an_unknown_status_is_logged_once(make_emulator, worker_for):

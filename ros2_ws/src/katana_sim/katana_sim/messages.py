@@ -5,12 +5,10 @@ from __future__ import annotations
 import numpy as np
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from geometry_msgs.msg import Pose
-from katana_common.messages import multi_dof_joints, time_msg, to_seconds
+from katana_common.messages import time_msg
 from katana_description import models as m
 from katana_interfaces.msg import Block, BlockArray
 from sensor_msgs.msg import CameraInfo, Image, JointState
-
-from katana_sim.core import TrajectoryGoal
 
 
 def joint_state_msg(sim) -> JointState:
@@ -66,21 +64,6 @@ def ground_truth_msg(sim, frame_id: str) -> BlockArray:
         blk.pixel_u, blk.pixel_v, blk.pixel_angle = b.pixel_u, b.pixel_v, b.pixel_angle
         arr.blocks.append(blk)
     return arr
-
-
-def trajectory_goal(request) -> TrajectoryGoal:
-    """The arm contract's goal of a FollowJointTrajectory goal message (validated later)."""
-    traj = request.trajectory
-    return TrajectoryGoal(
-        joint_names=list(traj.joint_names),
-        times_s=[to_seconds(pt.time_from_start) for pt in traj.points],
-        positions=[list(pt.positions) for pt in traj.points],
-        velocities=[list(pt.velocities) for pt in traj.points],
-        path_tolerance=[(t.name, t.position) for t in request.path_tolerance],
-        goal_tolerance=[(t.name, t.position) for t in request.goal_tolerance],
-        goal_time_tolerance_s=to_seconds(request.goal_time_tolerance),
-        multi_dof_joints=multi_dof_joints(request),
-    )
 
 
 def trajectory_feedback(sim, follower) -> FollowJointTrajectory.Feedback:

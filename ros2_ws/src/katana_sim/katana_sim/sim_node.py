@@ -21,6 +21,7 @@ from control_msgs.action import FollowJointTrajectory, GripperCommand
 from katana_common.diagnostics import Diagnostics
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.health import ClockRatio, pace_health
+from katana_common.messages import trajectory_goal
 from katana_common.node_runner import run_node
 from katana_common.params import ParameterError, declare_parameters
 from katana_description import arm_contract as ac
@@ -170,12 +171,11 @@ class SimNode(Node):
     def _execute_trajectory(self, goal_handle):
         result = FollowJointTrajectory.Result()
         handle = None
-        count = ac.check_point_count(len(goal_handle.request.trajectory.points))
-        if not count.ok:  # before any point is read
-            result.error_code, result.error_string = count.error_code, count.error_string
+        goal = trajectory_goal(goal_handle.request)
+        if isinstance(goal, ac.Verdict):  # too many points, non-finite tolerance parts
+            result.error_code, result.error_string = goal
         else:
             try:
-                goal = msgs.trajectory_goal(goal_handle.request)
                 with self.lock:
                     handle = self.world.start_trajectory(goal)
             except (TypeError, ValueError) as exc:  # values no contract rule expected

@@ -200,6 +200,15 @@ class NotFound(Exception):
     """No fovea location realises the requested state-action pair; the message says why."""
 
 
+def _top_in_image(c: Calibration, st: _Stack) -> tuple[float, float, float]:
+    """Where a stack's top face is in the image: its centre (u, v) and its yaw as an image
+    angle, the centre and frame of the fovea's grid around it."""
+    top = st.top
+    z = top_height(st.height, top.size)
+    u0, v0 = (float(a) for a in c.world_to_pixel(top.x, top.y, z))
+    return u0, v0, c.yaw_to_image_angle(top.x, top.y, top.yaw, z)
+
+
 @dataclass
 class FoveaScene:
     """The fovea's view of one setting (a memory snapshot)."""
@@ -360,11 +369,7 @@ class FoveaScene:
 
     def _around(self, st: _Stack, step: float):
         """Fovea locations around a stack top, in scan order."""
-        c = self.calibration
-        top = st.top
-        z = top_height(st.height, top.size)
-        u0, v0 = (float(a) for a in c.world_to_pixel(top.x, top.y, z))
-        ang = c.yaw_to_image_angle(top.x, top.y, top.yaw, z)
+        u0, v0, ang = _top_in_image(self.calibration, st)
         # u0 + du e1 + dv e2 in Python floats: the same IEEE operations as on 2-vectors
         e1u, e1v, e2u, e2v = math.cos(ang), math.sin(ang), -math.sin(ang), math.cos(ang)
         if step not in self._grids:
@@ -485,11 +490,7 @@ class FoveaSceneReference(FoveaScene):
         return _stack_of(chain, [self._face_mask(b, i + 1) for i, b in enumerate(chain)], 0, 0)
 
     def _around(self, st: _Stack, step: float):
-        c = self.calibration
-        top = st.top
-        z = top_height(st.height, top.size)
-        u0, v0 = (float(a) for a in c.world_to_pixel(top.x, top.y, z))
-        ang = c.yaw_to_image_angle(top.x, top.y, top.yaw, z)
+        u0, v0, ang = _top_in_image(self.calibration, st)
         e1 = np.array([math.cos(ang), math.sin(ang)])
         e2 = np.array([-math.sin(ang), math.cos(ang)])
         for du, dv in self._grid(step):

@@ -36,6 +36,17 @@ def _cross(ox: int, oy: int, ax: int, ay: int, bx: int, by: int) -> int:
     return (ax - ox) * (by - oy) - (ay - oy) * (bx - ox)
 
 
+@nb.njit(cache=True, inline="always")
+def _in_window(dx: float, dy: float, c: float, s: float, ms: float, half: float) -> bool:
+    """A pixel at (dx, dy) from the fovea centre lies in its window: the reference's
+    to_fovea_frame and in_window, the same float64 operations in the same order."""
+    lx = dx * c + dy * s
+    if not (lx >= -half and lx < half):
+        return False
+    ly = dx * ms + dy * c
+    return ly >= -half and ly < half
+
+
 @nb.njit(cache=True)
 def features_at(xs, inter, starts, heights, near_lo, near_hi, u, v, c, s, half, probes,
                 tol):  # pragma: no cover - compiled; tested against the reference
@@ -71,14 +82,10 @@ def features_at(xs, inter, starts, heights, near_lo, near_hi, u, v, c, s, half, 
         for y in range(y0, y1 + 1):
             dy = float(y) - v
             for i in range(starts[k, y], starts[k, y + 1]):
-                dx = float(xs[i]) - u
-                lx = dx * c + dy * s
-                if lx >= -half and lx < half:
-                    ly = dx * ms + dy * c
-                    if ly >= -half and ly < half:
-                        n += 1
-                        if not rival:
-                            break
+                if _in_window(float(xs[i]) - u, dy, c, s, ms, half):
+                    n += 1
+                    if not rival:
+                        break
             if n > 0 and not rival:
                 break
         if n > 0 and (h > best_h or n > best_n):  # ties: the first stack in id order
@@ -97,28 +104,18 @@ def features_at(xs, inter, starts, heights, near_lo, near_hi, u, v, c, s, half, 
         dy = float(y) - v
         first = -1
         for i in range(starts[k, y], starts[k, y + 1]):
-            if inter[i]:
-                dx = float(xs[i]) - u
-                lx = dx * c + dy * s
-                if lx >= -half and lx < half:
-                    ly = dx * ms + dy * c
-                    if ly >= -half and ly < half:
-                        first = i
-                        break
+            if inter[i] and _in_window(float(xs[i]) - u, dy, c, s, ms, half):
+                first = i
+                break
         if first < 0:
             continue
         px[npts], py[npts] = xs[first], y
         npts += 1
         for i in range(starts[k, y + 1] - 1, first, -1):
-            if inter[i]:
-                dx = float(xs[i]) - u
-                lx = dx * c + dy * s
-                if lx >= -half and lx < half:
-                    ly = dx * ms + dy * c
-                    if ly >= -half and ly < half:
-                        px[npts], py[npts] = xs[i], y
-                        npts += 1
-                        break
+            if inter[i] and _in_window(float(xs[i]) - u, dy, c, s, ms, half):
+                px[npts], py[npts] = xs[i], y
+                npts += 1
+                break
     if npts < 3:
         # one pixel, two, or one row's run: fewer than 3 pixels or no area; nothing inside
         return k, 0
