@@ -117,6 +117,64 @@ def check_graph(params: ParamSet, backend: str, layers: Iterable[str] = LAYERS,
             check_node(params, node, specs, rule, (base or {}).get(node))
         elif node in params.sections:
             check_node(params, node, specs, started=False)
+    check_agreement(params, started, base)
+
+
+#: parameters that name one fact about the whole graph: every started node declaring one must be
+#: given the same value (a sim of one Katana type under an executor planning for another would
+#: move the arm the executor did not plan for)
+SHARED_PARAMS = ("model", "camera_frame", "extrinsics_file", "world_frame")
+#: (node, shared name) -> the name that node declares it by
+SHARED_ALIASES = {("camera_node", "camera_frame"): "frame_id"}
+
+
+def shared_name(node: str, name: str) -> str | None:
+    """The name under which `node` declares the shared parameter `name`, or None."""
+    own = SHARED_ALIASES.get((node, name), name)
+    return own if any(p.name == own for p in NODE_RULES[node][0]) else None
+
+
+def check_agreement(params: ParamSet, started: Iterable[str],
+                    base: Mapping[str, Mapping[str, Entry]] | None = None) -> None:
+    """Every started node that declares a SHARED_PARAMS name gets one value for it, its
+    default counted where it is given none (ParamFileError naming the nodes otherwise)."""
+    for name in SHARED_PARAMS:
+        # value -> (node, its entry if given, whether given on top of the packaged files)
+        groups: dict[Any, list[tuple[str, Entry | None, bool]]] = {}
+        for node in started:
+            own = shared_name(node, name)
+            if own is None:
+                continue
+            packaged = (base or {}).get(node, {}).get(own)
+            entry = {**(base or {}).get(node, {}), **params.overrides(node)}.get(own)
+            default = next(p.default for p in NODE_RULES[node][0] if p.name == own)
+            value = default if entry is None else entry.value
+            groups.setdefault(_hashable(value), []).append(
+                (node, entry, entry is not None and entry is not packaged))
+        if len(groups) > 1:
+            said = "; ".join(f"{', '.join(_named(n, name) for n, _, _ in nodes)}: {value!r}"
+                             for value, nodes in groups.items())
+            # blamed: the value given on top of the packaged files to the fewest nodes
+            blamed = min(groups.values(), key=lambda g: (not any(on for *_, on in g), len(g)))
+            given = [e for _, e, on in blamed if on] or [e for _, e, _ in blamed if e]
+            entry = _last_filed(given) or Entry(None, "--params")
+            raise ParamFileError(entry.where, f"parameter '{name}' must be the same for every "
+                                 f"node of the graph that declares it; given {said}",
+                                 entry.option)
+
+
+def _named(node: str, name: str) -> str:
+    own = shared_name(node, name)
+    return node if own == name else f"{node} ({own})"
+
+
+def _hashable(value: Any) -> Any:
+    return tuple(value) if isinstance(value, list) else value
+
+
+def _last_filed(entries: Sequence[Entry]) -> Entry | None:
+    filed = [e for e in entries if e.where]
+    return filed[-1] if filed else (entries[-1] if entries else None)
 
 
 def hardware_base(backend: str) -> dict[str, dict[str, Entry]]:

@@ -35,6 +35,7 @@ from katana_common.cli_testing import (
 from katana_common.param_files import TOLERATED_UNDECLARED
 from katana_curiosity.core.strategies import STRATEGIES
 from katana_driver import emulator
+from katana_perception.core.calibration import Calibration
 
 CHECKS = cli_settings(25)
 
@@ -265,6 +266,57 @@ def test_katana_run_checks_only_the_started_nodes_cross_rules(workdir, capsys):
     assert "p.yaml:3: curiosity_node: parameter 'table_action' is 9" in line
     params = run.graph_param_set("sim", [path], layers=["arm"])
     assert params.values()["curiosity_node"]["table_action"] == 9
+
+
+def _declaring(backend: str, name: str) -> dict[str, str]:
+    """Started node -> the name it declares the shared parameter by."""
+    started = graph_params.started_nodes(backend)
+    return {n: own for n in started if (own := graph_params.shared_name(n, name))}
+
+
+_OTHER_VALUE = {"model": "300_6m180", "camera_frame": "camera_color_optical_frame",
+                "extrinsics_file": "calib.yaml", "world_frame": "table"}
+
+
+@CHECKS
+@given(data=st.data())
+@pytest.mark.parametrize("backend", graph_params.BACKENDS)
+@pytest.mark.parametrize("name", graph_params.SHARED_PARAMS)
+def test_a_fact_of_the_whole_graph_given_two_values_is_refused(workdir, data, backend, name):
+    """A node given another model, camera frame, extrinsics file or world frame than the rest
+    is refused before any work, naming the parameter and the nodes on each side; the same
+    value given to every node that declares it is taken."""
+    nodes = _declaring(backend, name)
+    assert len(nodes) >= 2, nodes  # else the rule would check nothing
+    # the driver refuses every model but the 450: another node is the odd one there
+    odd = data.draw(st.sampled_from(sorted(n for n in nodes if n != "katana_driver_node")),
+                    label="odd node")
+    value = _OTHER_VALUE[name]
+    if name == "extrinsics_file":
+        extrinsics = Calibration.overhead_default().extrinsics_yaml()
+        (workdir / value).write_text(yaml.safe_dump(extrinsics))
+    path = workdir / "p.yaml"
+    path.write_text(yaml.safe_dump({odd: {"ros__parameters": {nodes[odd]: value}}}))
+    params = graph_params.ParamSet().read(path)
+    with pytest.raises(graph_params.ParamFileError) as refusal:
+        graph_params.check_graph(params, backend, base=graph_params.hardware_base(backend))
+    said = str(refusal.value)
+    assert said.startswith(f"{path}:3: parameter '{name}' must be the same"), said
+    assert all(n in said for n in nodes) and f"{value!r}" in said, said
+    if backend == "hardware" and name == "model":
+        return
+    path.write_text(yaml.safe_dump({n: {"ros__parameters": {own: value}}
+                                    for n, own in nodes.items()}))
+    graph_params.check_graph(graph_params.ParamSet().read(path), backend,
+                             base=graph_params.hardware_base(backend))
+
+
+def test_katana_run_refuses_a_sim_of_another_model_than_the_executor_plans_for(workdir, capsys):
+    path = workdir / "p.yaml"
+    path.write_text("sim_node:\n  ros__parameters:\n    model: 400_6m180\n")
+    line = _refused(run.main, ["--params", str(path)], "--params", capsys, workdir)
+    assert "p.yaml:3: parameter 'model' must be the same" in line, line
+    assert "sim_node: '400_6m180'" in line and "pick_place_executor" in line, line
 
 
 # -- the installed console scripts ------------------------------------------------------------

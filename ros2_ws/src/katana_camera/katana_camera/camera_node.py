@@ -44,7 +44,7 @@ PARAMS = (
     Param("rate", 15.0, "publishing rate, Hz", low=0.5, high=60.0, live=True),
     Param("camera_info_file", "",
           "camera_info YAML from camera_calibration ('' = the package's NOMINAL intrinsics)"),
-    Param("frame_id", "camera_optical_frame", "optical frame of the images (REP 105)",
+    Param("frame_id", "camera_optical_frame", "optical frame of the images (REP 103)",
           nonempty=True, live=True),
     Param("reconnect_period", 2.0, "s between attempts to reopen the camera", low=0.1,
           high=60.0, live=True),

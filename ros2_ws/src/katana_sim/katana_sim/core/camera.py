@@ -1,6 +1,6 @@
 """Pinhole model of the simulated overhead camera, shared by the renderer and CameraInfo. ROS-free.
 
-The pose is that of `camera_optical_frame` in `world` (REP 105: z forward, x right in the image,
+The pose is that of `camera_optical_frame` in `world` (REP 103: z forward, x right in the image,
 y down), given as a position and roll-pitch-yaw (fixed axes, R = Rz(yaw) Ry(pitch) Rx(roll)).
 The default looks straight down from (0.22, 0, 0.75) with image row 0 towards +x and columns
 increasing towards -y: rpy = (pi, 0, -pi/2). The principal point is the image centre in the
