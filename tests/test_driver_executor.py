@@ -46,7 +46,7 @@ def test_executor_picks_and_places_on_the_emulated_arm(emulator, spline_latency_
     so no segment may arrive twice and the arm must end parked."""
     # A 4 cm block between the fingers: the emulated gripper stalls where a block holds it.
     block_angle = models.finger_angle_for_opening(0.04)
-    emulator.model.gripper_stall_at = int(EncoderModel.gripper_angle_to_encoder(block_angle))
+    emulator.model.gripper_stall_at = int(EncoderModel().gripper_angle_to_encoder(block_angle))
     host, port = emulator.address
     ctx = Context()
     rclpy.init(context=ctx)

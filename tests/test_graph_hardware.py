@@ -87,7 +87,7 @@ def test_katana_run_hardware_runs_the_curiosity_loop_against_the_emulator(emulat
     # The emulator has no blocks: its gripper stalls where a 4 cm block would hold the fingers,
     # so that a grasp reads as holding one (the substitute camera's squares do not move).
     block_angle = models.finger_angle_for_opening(0.04)
-    emulator.model.gripper_stall_at = int(EncoderModel.gripper_angle_to_encoder(block_angle))
+    emulator.model.gripper_stall_at = int(EncoderModel().gripper_angle_to_encoder(block_angle))
     host, port = emulator.address
     overlay = tmp_path / "emulator.yaml"
     overlay.write_text(

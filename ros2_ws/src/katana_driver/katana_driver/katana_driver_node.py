@@ -33,7 +33,7 @@ from std_msgs.msg import Bool
 from katana_driver import messages as msgs
 from katana_driver.core import motion
 from katana_driver.core.arm import ArmState, ArmWorker
-from katana_driver.core.encoders import ALL_JOINTS, EncoderModel, variant_of
+from katana_driver.core.encoders import ALL_JOINTS, EncoderModel
 from katana_driver.core.transport import make_transport
 from katana_driver.driver_params import PARAMS, cross_check
 from katana_driver.health import driver_health
@@ -46,8 +46,8 @@ class KatanaDriverNode(Node):
         kwargs.setdefault("node_name", "katana_driver_node")
         super().__init__(**kwargs)
         self.params = params = declare_parameters(self, PARAMS, cross_check)
-        self.katana_type, self.variant = variant_of(params["model"])
-        self.model = EncoderModel(self.variant)
+        # the model parameter picks the KNI numbers (Katana type) and the gripper variant
+        self.model = EncoderModel.for_model(params["model"])
         self.contract = self._contract()
         self._stop = threading.Event()
         self.worker = ArmWorker(

@@ -19,6 +19,7 @@ from katana_common.params import ParameterError
 from katana_common.qos import DIAGNOSTICS_QOS
 from katana_common.testing import call_service, spin_until
 from katana_description import arm_contract as ac
+from katana_driver.core import encoders
 from katana_driver.core import protocol as p
 from katana_driver.core.encoders import ALL_JOINTS, ARM_JOINTS, EncoderModel
 from katana_driver.katana_driver_node import KatanaDriverNode
@@ -320,10 +321,11 @@ def test_diagnostics_report_a_missing_controller_as_an_error(graph, make_emulato
 
 @pytest.mark.parametrize(
     ("model", "transport", "why"),
-    [("300_6m180", "serial", "81408 ticks per cycle"), ("400_6m180", "tcp", "G\\+128")],
+    [("300_6m180", "serial", "motor by motor.*weird configuration"),
+     ("400_6m180", "tcp", "G\\+128")],
 )
 def test_models_not_driven_as_kni_drives_them_are_refused_at_start_up(model, transport, why):
-    """The Katana 300's motor 3 would end near 0.24 rad when commanded 2.0 (KNI's cfg)."""
+    """KNI drives the 300 motor by motor and without flushes, the 400 with G/G+128."""
     ctx = Context()
     rclpy.init(context=ctx)
     try:
@@ -334,6 +336,40 @@ def test_models_not_driven_as_kni_drives_them_are_refused_at_start_up(model, tra
                 parameter_overrides=[Parameter("model", value=model),
                                      Parameter("transport", value=transport)],
             )
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+@pytest.mark.parametrize(
+    ("model", "transport", "motor3_ticks", "pan_upper"),
+    [("450_6m180", "tcp", 47488, 2.891097), ("400_6m180", "tcp", 47488, 3.013202),
+     ("300_6m180", "serial", 81408, 3.025474)],
+)
+def test_the_model_parameter_picks_the_encoder_model(monkeypatch, model, transport,
+                                                     motor3_ticks, pan_upper):
+    """The node converts with the KNI numbers of the model it was given, not the 450's: with
+    the start-up refusal lifted, a 300 node's motor 3 has 81408 ticks per cycle. No controller
+    answers (a closed port, a missing device): only the construction is under test."""
+    monkeypatch.setattr(encoders, "REFUSED_TYPES", {})
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        node = KatanaDriverNode(
+            node_name=f"katana_driver_model_{next(_ids)}",
+            context=ctx,
+            parameter_overrides=[Parameter("model", value=model),
+                                 Parameter("transport", value=transport),
+                                 Parameter("host", value="127.0.0.1"), Parameter("port", value=9),
+                                 Parameter("serial_device", value="/nonexistent/katana"),
+                                 Parameter("reconnect_period", value=60.0)],
+        )
+        try:
+            assert node.model.config is encoders.KNI_CONFIGS[model]
+            assert node.model.params(3).ticks_per_rev == motor3_ticks
+            assert node.model.joint_limits(1)[1] == pytest.approx(pan_upper, abs=1e-6)
+            assert node.worker.model is node.model
+        finally:
+            node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
 

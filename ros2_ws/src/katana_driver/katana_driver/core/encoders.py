@@ -1,9 +1,12 @@
-"""Encoder <-> joint-angle conversion of the Katana, per variant (docs/KATANA.md).
+"""Encoder <-> joint-angle conversion of the Katana, per arm model (docs/KATANA.md).
 
-theta_kni = angleOffset - (enc - encoderOffset) * 2 pi / (ticksPerRev * dir); the URDF angle is
-theta_kni - pi for motors 1, 3, 4, 5 and theta_kni for motor 2, wrapped to [-pi, pi). This
-reproduces the URDF's joint limits. The gripper (motor 6) is linear between 12240 (-0.44 rad,
-closed) and 30770 (0.30 rad, open). Angles are the URDF's (what joint_states carries).
+KNI's conversion (its enc2rad): theta_kni = angleOffset - (enc - encoderOffset) * 2 pi /
+(encodersPerCycle * rotationDirection); the URDF angle is theta_kni - pi for motors 1, 3, 4, 5
+and theta_kni for motor 2, wrapped to [-pi, pi) (the ROS 1 node's KNIConverter). A motor's
+encoder range runs from encoderOffset to KNI's encoder stop, encoderOffset - rotationDirection *
+int(encodersPerCycle * angleRange / 360). The gripper (motor 6) is linear between the cfg's
+closeEncoders (-0.44 rad) and openEncoders (0.30 rad). Angles are the URDF's (joint_states').
+Each model's numbers are in KNI_CONFIGS, with the file they come from.
 """
 
 from __future__ import annotations
@@ -19,15 +22,15 @@ VARIANTS = ("6M180", "6M90A", "6M90B")
 KATANA_TYPES = (300, 400, 450)
 
 #: Katana types the driver refuses at start-up, with the reason. The driver drives only what
-#: it drives exactly as the vendor's library (KNI 4.3.0) does; these differ from the 450 in
-#: facts the encoder model and the protocol layer do not yet carry per type.
+#: it drives exactly as the vendor's library (KNI 4.3.0) does. Both have an encoder model
+#: (KNI_CONFIGS) that a driver of their protocol can use; the protocol is what differs.
 REFUSED_TYPES = {
-    300: "KNI's Katana 300 configuration differs from the 450's in encoder facts the driver "
-         "does not model (motor 3: 81408 ticks per cycle, not 47488, so a commanded 2.0 rad "
-         "would end near 0.24 rad; gripper encoders 31000 open / -16768 closed) and in its "
-         "protocol (motor-by-motor calibration, single G segments without H, no flush)",
-    400: "KNI drives the Katana 400 with G and G+128 spline segments, not H, and with wider "
-         "joint ranges than the 450's that the driver uses",
+    300: "KNI drives the Katana 300 motor by motor (it calibrates one motor at a time and "
+         "sends single G segments, never H), and its flush of the move buffers moves a 300 "
+         "to 'a weird configuration' (the ROS 1 driver skips it); this driver calibrates all "
+         "motors at once, plays H segments and flushes on every stop",
+    400: "KNI drives the Katana 400 with per-motor G segments started by G+128, not with the "
+         "H segments this driver plays",
 }
 
 # Joint names and speed limits are katana_description's (one source for the sim and the arm).
@@ -38,8 +41,8 @@ ALL_JOINTS = models.ALL_JOINTS
 #: Maximum joint speeds of motors 1..6, rad/s (motor 6: the fingers).
 MAX_SPEED = tuple(models.JOINT_MAX_SPEED[j] for j in ARM_JOINTS + FINGER_JOINTS[:1])
 
-GRIPPER_OPEN_ENC, GRIPPER_OPEN_RAD = 30770, models.GRIPPER_OPEN
-GRIPPER_CLOSED_ENC, GRIPPER_CLOSED_RAD = 12240, models.GRIPPER_CLOSED
+GRIPPER_OPEN_RAD = models.GRIPPER_OPEN
+GRIPPER_CLOSED_RAD = models.GRIPPER_CLOSED
 
 
 def variant_of(model_name: str) -> tuple[int, str]:
@@ -60,11 +63,13 @@ def refusal_of(model_name: str) -> str | None:
 
 @dataclass(frozen=True)
 class MotorParams:
-    ticks_per_rev: int
-    encoder_offset: int
-    angle_offset_deg: float
-    direction: int  # +1 or -1
-    angle_range_deg: float
+    """One motor's [MOT[i]] numbers of a KNI configuration file."""
+
+    ticks_per_rev: int  # encodersPerCycle
+    encoder_offset: int  # encoderOffset: the encoder at the calibration stop
+    angle_offset_deg: float  # angleOffset: KNI's angle at the calibration stop
+    direction: int  # rotationDirection, +1 or -1
+    angle_range_deg: float  # angleRange: signed, from the calibration stop
     urdf_shift: float  # theta_urdf = theta_kni - urdf_shift
 
     @property
@@ -84,10 +89,83 @@ class MotorParams:
         return -self.ticks_per_rev * self.direction / (2.0 * math.pi)
 
 
-#: Motor 6 (the gripper) as KNI configures it (docs/KATANA.md: 51200 ticks per revolution,
-#: encoder offset 31000, angle offset -119.5 deg, direction +, angle range 329 deg): only its
-#: encoder range is used, (-15791, 31000); its angle is the linear gripper map below.
+@dataclass(frozen=True)
+class KniConfig:
+    """One Katana model's encoder facts as KNI configures them (docs/KATANA.md, per model)."""
+
+    model: str  # the driver's model name, e.g. "450_6m180"
+    source: str  # where the numbers come from
+    motors: tuple[MotorParams, ...]  # motors 1..5
+    gripper_open_enc: int  # [GRIPPER] openEncoders
+    gripper_closed_enc: int  # [GRIPPER] closeEncoders
+    gripper_range: tuple[int, int]  # motor 6's encoder range
+
+    def with_variant(self, variant: str) -> KniConfig:
+        """The 6M90B mounts motor 5 half a turn round: its angle offset is 8.5 - 180 degrees
+        (KNI's katana6M90B cfgs); the 6M180 and 6M90A share the 6M180's."""
+        if variant != "6M90B":
+            return self
+        m5 = self.motors[4]
+        turned = MotorParams(m5.ticks_per_rev, m5.encoder_offset, m5.angle_offset_deg - 180.0,
+                             m5.direction, m5.angle_range_deg, m5.urdf_shift)
+        return KniConfig(self.model, self.source, (*self.motors[:4], turned),
+                         self.gripper_open_enc, self.gripper_closed_enc, self.gripper_range)
+
+
+_PI = math.pi
+
+
+def _arm(ticks: tuple[int, ...], ranges: tuple[float, ...]) -> tuple[MotorParams, ...]:
+    """Motors 1..5 of a 6M180: the encoder offsets (+-31000), angle offsets (6.65, 124.25,
+    52.7, 63.5, 8.5 degrees) and directions (motor 3 negative) every KNI 6M180 cfg shares,
+    with the model's ticks per cycle and angle ranges."""
+    offsets = (31000, -31000, -31000, 31000, 31000)
+    angle_offsets = (6.65, 124.25, 52.7, 63.5, 8.5)
+    directions = (1, 1, -1, 1, 1)
+    shifts = (_PI, 0.0, _PI, _PI, _PI)
+    return tuple(MotorParams(*row) for row in zip(ticks, offsets, angle_offsets, directions,
+                                                  ranges, shifts, strict=True))
+
+
+#: Motor 6 (the gripper) of the Katana 400/450 cfgs: 51200 ticks per cycle, encoder offset
+#: 31000, angle offset -119.5 degrees, direction +, angle range 329 degrees: its encoder
+#: range (-15791, 31000) is the gripper's; its angle is the linear gripper map.
 GRIPPER_MOTOR = MotorParams(51200, 31000, -119.5, 1, 329.0, 0.0)
+
+_TICKS_450 = tuple(models.ENCODERS_PER_REV[j] for j in ARM_JOINTS)  # 51200, 94976, 47488, ...
+
+#: Every model's encoder facts, keyed by the model parameter's values (katana_description).
+KNI_CONFIGS: dict[str, KniConfig] = {
+    # KNI 4.3.0 configfiles450/katana6M180.cfg: ticks per cycle are katana_description's
+    # (ENCODERS_PER_REV), ranges 339, -132, 245, 224, 336 degrees; they reproduce the ROS 1
+    # URDF's limits (katana_description.models.JOINT_LIMITS, a test keeps them equal). Gripper
+    # openEncoders 30770, closeEncoders 12240 (the ROS 1 node's KNI_GRIPPER_OPEN_ANGLE
+    # -2.057443 and KNI_GRIPPER_CLOSED_ANGLE 0.2165299 rad through motor 6's numbers).
+    "450_6m180": KniConfig(
+        "450_6m180", "KNI 4.3.0 configfiles450/katana6M180.cfg",
+        _arm(_TICKS_450, (339.0, -132.0, 245.0, 224.0, 336.0)),
+        30770, 12240, GRIPPER_MOTOR.encoder_range),
+    # Katana 4XX 6M180 of KNI 4.3.0 (configfiles400/katana6M180.cfg): the 450's ticks per
+    # cycle, wider ranges 346, -140, 250, 230, 342 degrees (KNI 4.3.0's analytical kinematics
+    # for the 6M180, kinematics6M180.cpp, Kinematics6M180::initialize: angle offsets and stops
+    # in rad, e.g. motor 1 0.116064 .. 6.154904). Gripper as the 450's. Unconfirmed against the
+    # cfg file itself (docs/hardware.md).
+    "400_6m180": KniConfig(
+        "400_6m180", "KNI 4.3.0 configfiles400/katana6M180.cfg (kinematics6M180.cpp)",
+        _arm(_TICKS_450, (346.0, -140.0, 250.0, 230.0, 342.0)),
+        30770, 12240, GRIPPER_MOTOR.encoder_range),
+    # KNI configfiles300/katana6M180.cfg: motor 3 has 81408 ticks per cycle, not 47488;
+    # ranges 346.7, -143.0, 250.0, 232.7, 342.8 degrees (the Katana 300 numbers of KNI 3.9.2,
+    # as quoted by the Golem Katana driver's encoder test). Gripper openEncoders 31000,
+    # closeEncoders -16768: motor 6 spans (-16768, 31000). Ranges unconfirmed against the
+    # 4.3.0 cfg file itself (docs/hardware.md).
+    "300_6m180": KniConfig(
+        "300_6m180", "KNI configfiles300/katana6M180.cfg",
+        _arm((51200, 94976, 81408, 51200, 51200), (346.7, -143.0, 250.0, 232.7, 342.8)),
+        31000, -16768, (-16768, 31000)),
+}
+
+_CONFIG_OF_TYPE = {int(name.split("_")[0]): cfg for name, cfg in KNI_CONFIGS.items()}
 
 #: The default of katana_driver_node's limit_margin_encoders: targets, trajectories and the
 #: calibration back-off stay this many encoders inside every motor's encoder range (a real
@@ -101,22 +179,26 @@ def _wrap(angle: float) -> float:
 
 
 class EncoderModel:
-    """Conversions for one variant; motors are numbered 1..6 as on the wire."""
+    """Conversions for one Katana type and gripper variant; motors are numbered 1..6 as on
+    the wire. ``EncoderModel.for_model(name)`` builds the one of a model parameter's value."""
 
-    def __init__(self, variant: str = "6M180") -> None:
+    def __init__(self, variant: str = "6M180", katana_type: int = 450) -> None:
         if variant not in VARIANTS:
             raise ValueError(f"variant '{variant}' not one of {', '.join(VARIANTS)}")
+        if katana_type not in _CONFIG_OF_TYPE:
+            raise ValueError(f"Katana type {katana_type} not one of "
+                             f"{', '.join(map(str, sorted(_CONFIG_OF_TYPE)))}")
         self.variant = variant
-        m5_offset = -171.5 if variant == "6M90B" else 8.5
-        pi = math.pi
-        ticks = [models.ENCODERS_PER_REV[j] for j in ARM_JOINTS]
-        self.motors = (
-            MotorParams(ticks[0], 31000, 6.65, 1, 339.0, pi),
-            MotorParams(ticks[1], -31000, 124.25, 1, -132.0, 0.0),
-            MotorParams(ticks[2], -31000, 52.7, -1, 245.0, pi),
-            MotorParams(ticks[3], 31000, 63.5, 1, 224.0, pi),
-            MotorParams(ticks[4], 31000, m5_offset, 1, 336.0, pi),
-        )
+        self.katana_type = katana_type
+        self.config = _CONFIG_OF_TYPE[katana_type].with_variant(variant)
+        self.motors = self.config.motors
+
+    @classmethod
+    def for_model(cls, model_name: str) -> EncoderModel:
+        """The encoder model of an arm model name such as "300_6m180" (its Katana type's KNI
+        numbers, its gripper variant)."""
+        kind, variant = variant_of(model_name)
+        return cls(variant, kind)
 
     # ------------------------------------------------------------------ arm motors 1..5
     def params(self, motor: int) -> MotorParams:
@@ -190,23 +272,22 @@ class EncoderModel:
         return abs(self.speed_to_encoder(motor, MAX_SPEED[motor - 1]))
 
     # ------------------------------------------------------------------ gripper, motor 6
-    @staticmethod
-    def gripper_encoder_to_angle(enc: float) -> float:
-        frac = (enc - GRIPPER_CLOSED_ENC) / (GRIPPER_OPEN_ENC - GRIPPER_CLOSED_ENC)
+    def gripper_encoder_to_angle(self, enc: float) -> float:
+        c = self.config
+        frac = (enc - c.gripper_closed_enc) / (c.gripper_open_enc - c.gripper_closed_enc)
         return GRIPPER_CLOSED_RAD + frac * (GRIPPER_OPEN_RAD - GRIPPER_CLOSED_RAD)
 
-    @staticmethod
-    def gripper_angle_to_encoder(angle: float) -> float:
+    def gripper_angle_to_encoder(self, angle: float) -> float:
+        c = self.config
         frac = (angle - GRIPPER_CLOSED_RAD) / (GRIPPER_OPEN_RAD - GRIPPER_CLOSED_RAD)
-        return GRIPPER_CLOSED_ENC + frac * (GRIPPER_OPEN_ENC - GRIPPER_CLOSED_ENC)
+        return c.gripper_closed_enc + frac * (c.gripper_open_enc - c.gripper_closed_enc)
 
-    @staticmethod
-    def gripper_encoder_range() -> tuple[int, int]:
-        return GRIPPER_MOTOR.encoder_range
+    def gripper_encoder_range(self) -> tuple[int, int]:
+        return self.config.gripper_range
 
-    @staticmethod
-    def gripper_speed_limit_enc() -> float:
-        enc_per_rad = (GRIPPER_OPEN_ENC - GRIPPER_CLOSED_ENC) / (
+    def gripper_speed_limit_enc(self) -> float:
+        c = self.config
+        enc_per_rad = (c.gripper_open_enc - c.gripper_closed_enc) / (
             GRIPPER_OPEN_RAD - GRIPPER_CLOSED_RAD
         )
         return MAX_SPEED[5] * enc_per_rad * TICK_S
