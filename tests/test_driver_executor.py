@@ -11,8 +11,8 @@ from katana_common.executor import MultiThreadedExecutor
 from katana_common.testing import spin_until
 from katana_description import models
 from katana_driver.core.encoders import ARM_JOINTS, EncoderModel
-from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
 from katana_driver.katana_driver_node import KatanaDriverNode
+from katana_emulator.emulator import Faults, KatanaEmulator, KatanaModel
 from katana_interfaces.action import PickAndPlace
 from katana_manipulation.pick_place_executor import PickPlaceExecutor
 from rclpy.action.client import GoalStatus

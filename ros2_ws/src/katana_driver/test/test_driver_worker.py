@@ -9,7 +9,7 @@ from katana_driver.core.arm import ArmWorker
 from katana_driver.core.encoders import EncoderModel
 from katana_driver.core.splines import plan_trajectory
 from katana_driver.core.transport import TcpTransport
-from katana_driver.emulator_model import ENCODER_OFFSETS
+from katana_emulator.arms import MODELS
 
 pytestmark = pytest.mark.timeout(60)
 MODEL = EncoderModel()
@@ -75,7 +75,8 @@ def test_calibrates_when_needed_and_ends_inside_the_limits(make_emulator, worker
     w = worker_for(emulator, model=model)
     assert w.wait(lambda: w.worker.ready)
     kni_stops = [31000, -31000, -31000, 31000, 31000]  # KNI cfg encoderOffset, motors 1..5
-    assert list(ENCODER_OFFSETS[:5]) == kni_stops  # where the emulator's calibration ends
+    # where the emulator's calibration ends
+    assert list(MODELS[450].calibrated_encoders[:5]) == kni_stops
 
     def backed_off():
         encoders = w.worker.state.encoders[:5]
