@@ -117,6 +117,8 @@ _GRIPPER_450 = Gripper((31000 - int(51200 * 329.0 / 360.0), 31000), 30770, 12240
 _AXES_300 = (_AXES_450[0], _AXES_450[1], Axis(81408, -31000, -1, 245.0, 1.191), *_AXES_450[3:])
 _GRIPPER_300 = Gripper((-16768, 31000), 31000, -16768)
 
+# The 400: KNI's 400 configuration files were not at hand; the 450's numbers stand in for them
+# (the driver refuses to drive a 400, so no test depends on its ranges).
 MODELS = {
     450: ArmModel(450, _AXES_450, _GRIPPER_450, (KNI_PROTOCOL_THRESHOLD, 0), True, True, True),
     400: ArmModel(400, _AXES_450, _GRIPPER_450, (KNI_PROTOCOL_THRESHOLD, 0), True, True, True),
