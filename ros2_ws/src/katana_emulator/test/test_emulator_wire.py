@@ -4,10 +4,12 @@ implementation (the `crc` package's CRC-16/ARC)."""
 from __future__ import annotations
 
 import struct
+import subprocess
+import sys
 
 import pytest
 from crc import Calculator, Crc16
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from katana_emulator import wire
 
@@ -32,6 +34,7 @@ def test_reply_and_check_value_match_the_documented_bytes():
     assert wire.crc16(b"123456789") == 0xBB3D
 
 
+@settings(deadline=None)  # no timed asserts: the machine may be loaded
 @given(st.binary(max_size=300))
 def test_crc_equals_an_independent_crc16_arc(data):
     assert wire.crc16(data) == _ARC.checksum(data)
@@ -48,6 +51,7 @@ def test_the_error_explanation_is_57_bytes_with_a_nul_terminated_message():
 _payloads = st.lists(st.binary(min_size=1, max_size=80), max_size=6)
 
 
+@settings(deadline=None)  # no timed asserts: the machine may be loaded
 @given(_payloads, st.data())
 def test_any_split_of_a_stream_yields_the_same_requests(payloads, data):
     """Frames and 0xC1 queries come back whole and in order however TCP cuts the stream."""
@@ -71,6 +75,7 @@ def test_garbage_and_bad_frames_are_skipped_unanswered():
     assert reader.bad_frames == 1
 
 
+@settings(deadline=None)  # no timed asserts: the machine may be loaded
 @given(st.integers(1, 400), st.integers(-30000, 30000), st.integers(-30000, 30000),
        st.integers(-32768, 32767), st.integers(-32768, 32767), st.integers(-32768, 32767))
 def test_a_segment_is_the_documented_polynomial(duration, target, p0, p1, p2, p3):
@@ -84,3 +89,13 @@ def test_a_segment_is_the_documented_polynomial(duration, target, p0, p1, p2, p3
     sampled = max(abs(p1 / 64 + 2 * p2 / 1024 * s + 3 * p3 / 32768 * s * s) for s in samples)
     assert sampled <= seg.peak_speed() + 1e-9
     assert seg.peak_speed() <= sampled * 1.001 + 1e-6
+
+
+def test_the_emulator_loads_no_driver_module():
+    """The emulator shares no code with the driver it tests (also a ruff ban): importing all of
+    it, CLI included, loads no katana_driver module."""
+    code = ("import sys, katana_emulator.emulator, katana_emulator.model, katana_emulator.arms; "
+            "print(sorted(m for m in sys.modules if m.startswith('katana_driver')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "[]"
