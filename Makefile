@@ -9,8 +9,8 @@ JOBS ?= 2
 setup:
 	@bash scripts/setup.sh
 
-# Two pytest-xdist workers: the hardware loop test (about 7 min of real-time arm motion against
-# the emulator) runs first, beside the rest. Each worker's node processes get their own ROS
+# Two pytest-xdist workers: the hardware dry-run test (about 4 min of real-time arm motion
+# against the emulator) runs first, beside the rest. Each worker's node processes get their own ROS
 # domain (katana_common.testing); in-process graphs are isolated by discovery OFF.
 TEST_WORKERS ?= 2
 

@@ -11,7 +11,7 @@ if os.environ.get("CI"):
     settings.load_profile("ci")
 
 #: started first, so that under `-n 2` its real-time arm motions overlap the rest of the suite
-LONGEST_FIRST = ("test_katana_run_hardware_runs_the_curiosity_loop_against_the_emulator",)
+LONGEST_FIRST = ("test_dry_run_from_the_command_line_runs_experiments_against_the_emulator",)
 
 
 def pytest_collection_modifyitems(config, items):

@@ -31,9 +31,9 @@ from katana_common.testing import private_ros_env
 from katana_driver.core import protocol
 from katana_driver.core.client import KatanaClient
 from katana_driver.core.transport import SerialTransport, TcpTransport
-from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
 from katana_driver.katana_driver_node import KatanaDriverNode
 from katana_driver.testing import FAULTS, POSE_B, FaultBench, trajectory
+from katana_emulator.emulator import Faults, KatanaEmulator, KatanaModel
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 

@@ -10,9 +10,9 @@ from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.testing import spin_until
 from katana_description import models
-from katana_driver.core.encoders import ARM_JOINTS, EncoderModel
-from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
+from katana_driver.core.encoders import ARM_JOINTS
 from katana_driver.katana_driver_node import KatanaDriverNode
+from katana_emulator.emulator import Faults, KatanaEmulator, KatanaModel
 from katana_interfaces.action import PickAndPlace
 from katana_manipulation.pick_place_executor import PickPlaceExecutor
 from rclpy.action.client import GoalStatus
@@ -26,7 +26,10 @@ pytestmark = pytest.mark.timeout(120)
 
 @pytest.fixture
 def emulator():
-    made = KatanaEmulator(KatanaModel(calibrated=True, time_scale=2.0), Faults())
+    # A 4 cm block between the fingers: the emulated gripper stalls where a block holds it.
+    block = models.BLOCK_SIZE[0]
+    made = KatanaEmulator(KatanaModel(calibrated=True, time_scale=2.0, block_width_m=block),
+                          Faults())
     made.serve_tcp("127.0.0.1", 0)
     yield made
     made.stop()
@@ -44,9 +47,6 @@ def test_executor_picks_and_places_on_the_emulated_arm(emulator, spline_latency_
     """Also with replies to spline commands 0.6 s late (past the driver's 0.5 s timeout): a
     driver that re-sends a segment then makes the arm jump (it ended 0.17 rad from the goal),
     so no segment may arrive twice and the arm must end parked."""
-    # A 4 cm block between the fingers: the emulated gripper stalls where a block holds it.
-    block_angle = models.finger_angle_for_opening(0.04)
-    emulator.model.gripper_stall_at = int(EncoderModel().gripper_angle_to_encoder(block_angle))
     host, port = emulator.address
     ctx = Context()
     rclpy.init(context=ctx)

@@ -1,10 +1,13 @@
 """backend:=hardware: the whole graph starts against the protocol EMULATOR (not an arm) and a
-SUBSTITUTE camera, with the same node, topic and action names as the simulated graph; and
-`katana-run --backend hardware` with the shipped YAML (overriding only the emulator's host and
-port and the substitute camera) runs the curiosity loop."""
+SUBSTITUTE camera, with the same node, topic and action names as the simulated graph; and the
+documented dry run (the emulator's console script, then `katana-run --backend hardware` with
+the shipped YAML overriding only the emulator's host and port and the substitute camera) runs
+the curiosity loop."""
 
 from __future__ import annotations
 
+import json
+import shutil
 import signal
 import subprocess
 import sys
@@ -12,10 +15,9 @@ import time
 
 import pytest
 from katana_bringup.run import build_nodes, default_params_files, load_params
-from katana_common.testing import private_ros_env
+from katana_common.testing import private_ros_env, stop_process, wait_for_output
 from katana_description import models
-from katana_driver.core.encoders import EncoderModel
-from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
+from katana_emulator.emulator import Faults, KatanaEmulator, KatanaModel
 from katana_interfaces.msg import LearnerState
 from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import Image, JointState
@@ -82,41 +84,57 @@ def test_hardware_graph_starts_against_the_emulator_and_a_substitute_camera(
     g.wait_for(lambda: driver.worker.ready, timeout=30.0)
 
 
-@pytest.mark.timeout(900)
-def test_katana_run_hardware_runs_the_curiosity_loop_against_the_emulator(emulator, tmp_path):
-    # The emulator has no blocks: its gripper stalls where a 4 cm block would hold the fingers,
-    # so that a grasp reads as holding one (the substitute camera's squares do not move).
-    block_angle = models.finger_angle_for_opening(0.04)
-    emulator.model.gripper_stall_at = int(EncoderModel().gripper_angle_to_encoder(block_angle))
-    host, port = emulator.address
-    overlay = tmp_path / "emulator.yaml"
-    overlay.write_text(
-        "katana_driver_node:\n  ros__parameters:\n"
-        f"    host: \"{host}\"\n    port: {port}\n"
-        "camera_node:\n  ros__parameters:\n    device: \"substitute\"\n")
+@pytest.mark.timeout(600)
+def test_dry_run_from_the_command_line_runs_experiments_against_the_emulator(tmp_path):
+    """The dry run of docs/hardware.md section 3, as a user runs it: the emulator started by its
+    console script with command-line options only (a 4 cm block in the gripper, so that grasps
+    hold; motion 20 times faster), then `katana-run --backend hardware` with the shipped YAML
+    overriding only the emulator's host and port and the substitute camera; separate processes.
+    At least five experiments reach the experience log, and not every grasp missed."""
     env = private_ros_env()
-    log = tmp_path / "run" / "katana-run.log"
-    log.parent.mkdir()
-    with open(log, "w") as out:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "katana_bringup.run", "--backend", "hardware",
-             "--params", str(overlay)], cwd=tmp_path / "run", env=env, stdout=out,
-            stderr=subprocess.STDOUT)
-    experiences = tmp_path / "run" / "runs" / "robot" / "experience.jsonl"
-    deadline = time.monotonic() + 780
-    done = 0
+    emulator = subprocess.Popen(
+        [shutil.which("katana-emulator") or "katana-emulator", "--port", "0",
+         "--time-scale", "20", "--block-width-m", str(models.BLOCK_SIZE[0])],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env)
+    run = None
     try:
-        while done < 20:
-            assert proc.poll() is None, log.read_text()[-4000:]
+        found = wait_for_output(emulator.stdout, r"listening on tcp ([\d.]+):(\d+)", 20.0)
+        assert found, "the emulator did not say where it listens"
+        host, port = found.group(1), int(found.group(2))
+        overlay = tmp_path / "emulator.yaml"
+        overlay.write_text(
+            "katana_driver_node:\n  ros__parameters:\n"
+            f"    host: \"{host}\"\n    port: {port}\n"
+            "camera_node:\n  ros__parameters:\n    device: \"substitute\"\n")
+        log = tmp_path / "run" / "katana-run.log"
+        log.parent.mkdir()
+        with open(log, "w") as out:
+            run = subprocess.Popen(
+                [sys.executable, "-m", "katana_bringup.run", "--backend", "hardware",
+                 "--params", str(overlay)], cwd=tmp_path / "run", env=env, stdout=out,
+                stderr=subprocess.STDOUT)
+        experiences = tmp_path / "run" / "runs" / "robot" / "experience.jsonl"
+        deadline = time.monotonic() + 480
+        lines: list[str] = []
+        while len(lines) < 5:
+            assert run.poll() is None, log.read_text()[-4000:]
+            assert emulator.poll() is None, "the emulator stopped"
             assert time.monotonic() < deadline, (
-                f"{done} experiments in 780 s\n" + log.read_text()[-4000:])
-            if experiences.exists():
-                done = experiences.read_text().count("\n")  # one complete line each
+                f"{len(lines)} experiments in 480 s\n" + log.read_text()[-4000:])
+            if experiences.exists():  # complete lines only: each ends with its newline
+                lines = experiences.read_text().splitlines(keepends=True)
+                lines = [line for line in lines if line.endswith("\n")]
             time.sleep(1.0)
-        proc.send_signal(signal.SIGINT)
-        proc.wait(timeout=30)
+        stop_process(run, signal.SIGINT)
+        assert run.returncode == 0, log.read_text()[-4000:]
+        text = log.read_text()
+        assert "Traceback" not in text
+        records = [json.loads(line) for line in lines]
+        assert [r["index"] for r in records] == list(range(len(records)))
+        # a grasp that missed is retried (attempts > 1); with the block in the gripper the
+        # first attempt holds
+        assert all(r["attempts"] == 1 for r in records), records
     finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0, log.read_text()[-4000:]
-    assert "Traceback" not in log.read_text()
+        for proc in (run, emulator):
+            if proc is not None and proc.poll() is None:
+                stop_process(proc, signal.SIGINT, timeout_s=10.0)

@@ -18,12 +18,11 @@ setup(
     zip_safe=True,
     maintainer="Katana curiosity maintainers",
     maintainer_email="katana-curiosity@example.org",
-    description="Katana protocol driver (katana_driver_node) and protocol-level emulator.",
+    description="Katana protocol driver (katana_driver_node).",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "katana_driver_node = katana_driver.katana_driver_node:main",
-            "katana-emulator = katana_driver.emulator:main",
         ],
     },
 )

@@ -34,7 +34,7 @@ from katana_common.cli_testing import (
 )
 from katana_common.param_files import TOLERATED_UNDECLARED
 from katana_curiosity.core.strategies import STRATEGIES
-from katana_driver import emulator
+from katana_emulator import emulator
 from katana_perception.core.calibration import Calibration
 
 CHECKS = cli_settings(25)
@@ -70,6 +70,7 @@ EMULATOR_OPTIONS = {
     "--spline-latency": floats_outside(0.0, 60.0),
     "--silent-rate": floats_outside(0.0, 1.0),
     "--corrupt-rate": floats_outside(0.0, 1.0),
+    "--block-width-m": floats_outside(0.005, 0.099),
     "--seed": words,
     "--host": st.sampled_from(["", "bad..host", "no-such-host.invalid"]),
 }

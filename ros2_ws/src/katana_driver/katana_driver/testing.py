@@ -23,6 +23,7 @@ from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.messages import duration_msg
 from katana_common.testing import spin_until
+from katana_emulator.emulator import Faults, KatanaEmulator, KatanaModel
 from rclpy.action.client import GoalStatus
 from rclpy.context import Context
 from rclpy.node import Node
@@ -32,7 +33,6 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 
 from katana_driver.core.encoders import ARM_JOINTS, EncoderModel
 from katana_driver.core.protocol import KNI_MAX_ACCELERATION, TICK_S
-from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel
 from katana_driver.katana_driver_node import KatanaDriverNode
 
 _ids = itertools.count()

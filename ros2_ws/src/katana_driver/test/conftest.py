@@ -5,7 +5,7 @@ import os
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
 
 import pytest  # noqa: E402
-from katana_driver.emulator import Faults, KatanaEmulator, KatanaModel  # noqa: E402
+from katana_emulator.emulator import Faults, KatanaEmulator, KatanaModel  # noqa: E402
 
 
 @pytest.fixture

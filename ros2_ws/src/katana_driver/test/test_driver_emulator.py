@@ -7,8 +7,8 @@ from katana_driver.core import protocol as p
 from katana_driver.core.client import KatanaClient
 from katana_driver.core.splines import hermite_segment, hold_segment
 from katana_driver.core.transport import SerialTransport, TcpTransport, TransportError
-from katana_driver.emulator import BANNER, _FrameParser, main
-from katana_driver.emulator_model import ENCODER_OFFSETS
+from katana_emulator.arms import MODELS
+from katana_emulator.emulator import BANNER, main
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -53,7 +53,7 @@ def test_calibration_runs_and_ends_at_the_stops(make_emulator):
     client.calibrate()
     assert client.read_status() == [p.STATUS_CALIBRATING] * 6
     assert wait_until(lambda: client.read_status() == [p.STATUS_HOLDING] * 6)
-    assert client.read_positions() == list(ENCODER_OFFSETS)
+    assert client.read_positions() == list(MODELS[450].calibrated_encoders)
 
 
 def test_motor_commands_round_trip(make_emulator):
@@ -189,17 +189,6 @@ def test_serial_link_over_a_pseudo_terminal(make_emulator):
     emulator.faults.corrupt_next = 1
     assert client.read_status() == emulator.model.statuses()
     client.close()
-
-
-def test_frame_parser_skips_garbage_and_bad_frames():
-    parser = _FrameParser()
-    good = p.frame_request(b"Z")
-    bad = bytearray(p.frame_request(b"B"))
-    bad[-1] ^= 0xFF
-    stream = b"\x55\xaa" + bytes(bad) + good[:3]
-    assert parser.feed(stream) == []
-    assert parser.feed(good[3:] + p.ERROR_QUERY) == [b"Z", None]
-    assert parser.bad_frames == 1
 
 
 def test_console_script_refuses_a_busy_port(make_emulator, capsys):

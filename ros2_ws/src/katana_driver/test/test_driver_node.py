@@ -567,7 +567,9 @@ def test_a_segment_the_controller_refuses_ends_the_goal_and_freezes_the_arm(grap
     """Without the driver's margin, a goal 100 encoders from motor 1's stop goes out; the
     controller refuses the segment that targets it: the goal is aborted with the controller's
     reason and the arm frozen, and the driver serves the next goal."""
-    g = graph(make_emulator(calibrated=True), limit_margin_encoders=0)
+    emulator = make_emulator(calibrated=True)
+    emulator.model.refuse_within = 0  # the set-up's back-off, inside no margin, goes through
+    g = graph(emulator, limit_margin_encoders=0)
     assert g.spin_until(lambda: g.driver.worker.ready)
     assert g.spin_until(g.arm.server_is_ready)
     g.emulator.model.refuse_within = 200

@@ -190,14 +190,6 @@ def test_error_reply_frame():
         ord("C"), -3, 2, "Axis not calibrated")
 
 
-def test_emulator_side_decoders_read_the_golden_frames():
-    """decode_spline_all / decode_spline_one read the golden H and G payloads back."""
-    h = bytes.fromhex("48 " + " ".join([SEG_H] * 6) + " 01 01")
-    assert p.decode_spline_all(h) == ([SEG] * 6, p.ACTIVITY_LAST, True)
-    g = bytes.fromhex("47 01 FC 18 00 32 FC 18 01 00 FF 80 00 40")
-    assert p.decode_spline_one(g) == (1, SEG)
-
-
 @pytest.mark.parametrize(
     ("command", "request_len", "reply_len"),
     [

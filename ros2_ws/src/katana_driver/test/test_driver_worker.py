@@ -9,7 +9,7 @@ from katana_driver.core.arm import ArmWorker
 from katana_driver.core.encoders import EncoderModel
 from katana_driver.core.splines import plan_trajectory
 from katana_driver.core.transport import TcpTransport
-from katana_driver.emulator_model import ENCODER_OFFSETS
+from katana_emulator.arms import MODELS
 
 pytestmark = pytest.mark.timeout(60)
 MODEL = EncoderModel()
@@ -75,7 +75,8 @@ def test_calibrates_when_needed_and_ends_inside_the_limits(make_emulator, worker
     w = worker_for(emulator, model=model)
     assert w.wait(lambda: w.worker.ready)
     kni_stops = [31000, -31000, -31000, 31000, 31000]  # KNI cfg encoderOffset, motors 1..5
-    assert list(ENCODER_OFFSETS[:5]) == kni_stops  # where the emulator's calibration ends
+    # where the emulator's calibration ends
+    assert list(MODELS[450].calibrated_encoders[:5]) == kni_stops
 
     def backed_off():
         encoders = w.worker.state.encoders[:5]
@@ -279,6 +280,25 @@ def test_a_refused_back_off_ends_set_up_with_the_arm_frozen(make_emulator, worke
     assert w.wait(lambda: w.worker.polls > polls + 5)
     assert w.worker._thread.is_alive()
     assert any(level == "error" and "set-up stopped" in t for level, t in w.logs)
+
+
+def test_a_controller_kni_refuses_as_a_450_gets_no_command(make_emulator, worker_for):
+    """KNI exits when a controller configured as a 400/450 answers B with a version above 3
+    (CKatBase::checkKatanaType, "Incompatible Config File"): the driver sends it nothing
+    (no limits, no calibration), refuses goals with the reason, and keeps reading its state."""
+    emulator = make_emulator()
+    emulator.model.master_version = (4, 0)
+    speed_limits = [m.speed_limit for m in emulator.model.motors]
+    w = worker_for(emulator)
+    assert w.wait(lambda: bool(w.worker.setup_problem) and w.worker.connected)
+    assert "master version 4 is above 3" in w.worker.setup_problem
+    polls = w.worker.polls
+    assert w.wait(lambda: w.worker.polls > polls + 5)
+    assert not w.worker.ready and motion.ready_problem(w.worker) == w.worker.setup_problem
+    assert emulator.model.calibrations == 0
+    assert [m.speed_limit for m in emulator.model.motors] == speed_limits
+    assert [m.status for m in emulator.model.motors] == [p.STATUS_OFF] * 6
+    assert any(level == "error" and "set-up refused" in t for level, t in w.logs)
 
 
 def _play_to_the_end(w, emulator, plan, goal, timeout_s: float) -> None:

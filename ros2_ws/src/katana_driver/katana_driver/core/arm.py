@@ -252,22 +252,17 @@ class ArmWorker(TrajectoryStreaming):
                           f"master firmware version {version}")
         if "EMULATOR" in self.identification.upper():
             self._log("warn", "the controller is the katana-emulator, not a real arm")
-        if self.master_version[0] > KNI_MAX_450_MASTER_VERSION:
-            self._log("warn", f"master version {self.master_version[0]} is above "
-                              f"{KNI_MAX_450_MASTER_VERSION}: KNI would refuse this controller "
-                              "as a Katana 400/450 (docs/hardware.md, first power-on checklist)")
+        refused = self.master_version[0] > KNI_MAX_450_MASTER_VERSION
+        if refused:  # KNI exits here ("Incompatible Config File"): send it no command at all
+            self.setup_problem = (
+                f"set-up refused: master version {self.master_version[0]} is above "
+                f"{KNI_MAX_450_MASTER_VERSION}, and KNI refuses such a controller as a Katana "
+                "400/450 (docs/hardware.md, first power-on checklist)")
+            self._log("error", f"{self.setup_problem}; no command is sent and goals are refused")
         try:
             self._poll(force_status=True)
-            if self._freeze_on_connect:  # lost mid-motion: stop what the buffer may still play
-                try:
-                    self._freeze(self.client)
-                    self._log("warn", "reconnected: froze the arm (the link was lost)")
-                except p.ControllerError as exc:
-                    self._log("error", f"reconnected: could not freeze the arm: {exc}")
-            try:
-                self._setup()
-            except p.ControllerError as exc:
-                self._setup_refused(exc)
+            if not refused:
+                self._set_up_after_connect()
         except TransportError as exc:
             self.transport.close()
             self.link_error = f"set-up failed: {exc}"
@@ -276,6 +271,18 @@ class ArmWorker(TrajectoryStreaming):
         self.connected = True
         self.link_error = ""
         return True
+
+    def _set_up_after_connect(self) -> None:
+        if self._freeze_on_connect:  # lost mid-motion: stop what the buffer may still play
+            try:
+                self._freeze(self.client)
+                self._log("warn", "reconnected: froze the arm (the link was lost)")
+            except p.ControllerError as exc:
+                self._log("error", f"reconnected: could not freeze the arm: {exc}")
+        try:
+            self._setup()
+        except p.ControllerError as exc:
+            self._setup_refused(exc)
 
     def _setup(self) -> None:
         self.setup_problem = ""

@@ -369,22 +369,6 @@ def decode_gripper_sensors(payload: bytes) -> list[int]:
     return list(payload[2:18])
 
 
-# ---------------------------------------------------------------- decoders (emulator side)
-
-
-def decode_spline_all(payload: bytes) -> tuple[list[SplineSegment], int, bool]:
-    """Inverse of spline_all: the six segments, the activity flag and the exact flag."""
-    values = struct.unpack(">36h", payload[1:73])
-    segments = [SplineSegment(*values[6 * i : 6 * i + 6]) for i in range(NUM_MOTORS)]
-    return segments, payload[73], bool(payload[74])
-
-
-def decode_spline_one(payload: bytes) -> tuple[int, SplineSegment]:
-    """Inverse of spline_one: the motor and its segment."""
-    _, motor, target, duration, p0, p1, p2, p3 = struct.unpack(">BBhhhhhh", payload)
-    return motor, SplineSegment(duration, target, p0, p1, p2, p3)
-
-
 REQUEST_LENGTHS = {
     ord("Z"): 1,
     ord("B"): 1,

@@ -1,17 +1,20 @@
 """Katana EMULATOR: a protocol-level test double of the Katana controller. NOT a robot.
 
 It speaks the controller's wire protocol on loopback TCP (and on a pseudo-terminal for the
-serial Katana 300) in front of the motor model of katana_driver.emulator_model, with fault
-knobs (latency, split, silent and corrupted replies, replies to spline commands delayed, a
-silent or frozen controller). The vendor shipped a simulator speaking the same protocol for
-the same purpose: testing drivers and dry runs without an arm. It knows nothing of blocks,
-gravity or the real firmware's timing, so passing against it says the driver speaks the
-protocol as documented in docs/KATANA.md, not that an arm will do the same.
+serial Katana 300) in front of the motor model of katana_emulator.model, with fault knobs
+(latency, split, silent and corrupted replies, replies to spline commands delayed, a silent or
+frozen controller). The vendor shipped a simulator speaking the same protocol for the same
+purpose: testing drivers and dry runs without an arm. It is written from the facts of
+docs/KATANA.md and shares no code with katana_driver, so a test against it checks the driver
+against the documented controller, not against the driver's own assumptions. It knows nothing
+of gravity or the real firmware's timing; of blocks it knows one thing, for dry runs: with
+``--block-width-m`` closing fingers stall as on a block that wide.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import random
 import select
@@ -31,8 +34,9 @@ from katana_common.cli_args import (
     tcp_port,
 )
 
-from katana_driver.core import protocol as p
-from katana_driver.emulator_model import BANNER, KatanaModel
+from katana_emulator import wire
+from katana_emulator.arms import MAX_BLOCK_WIDTH_M, MODELS, VARIANTS
+from katana_emulator.model import BANNER, KatanaModel
 
 __all__ = ["BANNER", "Faults", "KatanaEmulator", "KatanaModel", "main"]
 
@@ -72,49 +76,6 @@ class Faults:
         return self.corrupt_rate > 0.0 and self._rng.random() < self.corrupt_rate
 
 
-class _FrameParser:
-    """Splits a byte stream into request payloads and raw 0xC1 queries; drops garbage."""
-
-    def __init__(self) -> None:
-        self.buf = bytearray()
-        self.bad_frames = 0
-
-    def feed(self, data: bytes) -> list[bytes | None]:
-        """Complete requests in order: a payload, or None for the raw error query."""
-        self.buf += data
-        out: list[bytes | None] = []
-        while self.buf:
-            if self.buf[0] == p.HEADER:
-                if len(self.buf) < 3:
-                    break
-                if self.buf[1] != p.ADDRESS:
-                    del self.buf[0]
-                    continue
-                n = self.buf[2] + 5
-                if len(self.buf) < n:
-                    break
-                frame = bytes(self.buf[:n])
-                del self.buf[:n]
-                try:
-                    out.append(p.parse_request(frame))
-                except p.ProtocolError:
-                    self.bad_frames += 1  # a corrupted request gets no reply: the client retries
-            elif self.buf[0] == 0x00:
-                if len(self.buf) < len(p.ERROR_QUERY):
-                    if p.ERROR_QUERY.startswith(bytes(self.buf)):
-                        break
-                    del self.buf[0]
-                    continue
-                if bytes(self.buf[:4]) == p.ERROR_QUERY:
-                    del self.buf[:4]
-                    out.append(None)
-                else:
-                    del self.buf[0]
-            else:
-                del self.buf[0]
-        return out
-
-
 class KatanaEmulator:
     """The emulated controller behind a TCP socket and/or a pseudo-terminal."""
 
@@ -131,14 +92,15 @@ class KatanaEmulator:
         self.serial_device: str | None = None
 
     # ------------------------------------------------------------------ replies
-    def _respond(self, parser: _FrameParser, data: bytes, write: Callable[[bytes], None]) -> None:
+    def _respond(self, parser: wire.FrameReader, data: bytes,
+                 write: Callable[[bytes], None]) -> None:
         while time.monotonic() < self.faults.frozen_until and not self._stop.is_set():
             time.sleep(0.01)  # a frozen controller: requests wait, unread, in the link
         for request in parser.feed(data):
             if request is None:
                 reply = self.model.error_reply()
             else:
-                reply = p.frame_reply(self.model.handle(request))
+                reply = wire.with_crc(self.model.handle(request))
             spline = request is not None and request[:1] in (b"G", b"H")
             self._send(reply, write, spline)
 
@@ -181,7 +143,7 @@ class KatanaEmulator:
             conn.settimeout(0.1)
             with self._conn_lock:
                 self._conn = conn
-            parser = _FrameParser()
+            parser = wire.FrameReader()
             try:
                 while not self._stop.is_set():
                     try:
@@ -224,7 +186,7 @@ class KatanaEmulator:
     def _pty_loop(self) -> None:
         assert self._pty is not None
         master = self._pty[0]
-        parser = _FrameParser()
+        parser = wire.FrameReader()
 
         def write(data: bytes) -> None:
             os.write(master, data)
@@ -270,6 +232,8 @@ class KatanaEmulator:
 _time_scale = float_in(0.0, 1000.0, low_open=True, what="a pace")
 _model_seconds = float_in(0.0, 3600.0, what="a number of model seconds")
 _reply_delay = float_in(0.0, 60.0, what="a number of seconds")
+_WIDEST_M = math.floor(MAX_BLOCK_WIDTH_M * 1000.0) / 1000.0  # what the open jaws take
+_block_width = float_in(0.005, _WIDEST_M, what="a block width in metres")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -283,8 +247,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--port", type=tcp_port, default=5566,
                         help="TCP port, 0..65535 (0: any free port)")
     parser.add_argument("--serial", action="store_true", help="also open a pseudo-terminal")
-    parser.add_argument("--type", type=int, default=450, choices=(300, 400, 450))
-    parser.add_argument("--variant", default="6M180", choices=("6M180", "6M90A", "6M90B"))
+    parser.add_argument("--type", type=int, default=450, choices=sorted(MODELS))
+    parser.add_argument("--variant", default="6M180", choices=VARIANTS)
     parser.add_argument("--time-scale", type=_time_scale, default=1.0,
                         help="model s per wall s, (0, 1000]")
     parser.add_argument("--calibration-time", type=_model_seconds, default=4.0,
@@ -300,6 +264,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--spline-latency", type=_reply_delay, default=0.0,
                         help="extra seconds before replies to spline commands (G, H), [0, 60]")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--block-width-m", type=_block_width, default=None, metavar="METRES",
+                        help="closing fingers stall where a block this wide holds them, so "
+                             "that grasps succeed in a dry run (default: no block; the fingers "
+                             f"close until they touch), [0.005, {_WIDEST_M}]")
     return parser
 
 
@@ -307,7 +275,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_command_line(build_parser(), argv)
 
     model = KatanaModel(katana_type=args.type, variant=args.variant, time_scale=args.time_scale,
-                        calibration_s=args.calibration_time, calibrated=args.calibrated)
+                        calibration_s=args.calibration_time, calibrated=args.calibrated,
+                        block_width_m=args.block_width_m)
     faults = Faults(latency_s=args.latency, split_replies=args.split,
                     silent_rate=args.silent_rate, corrupt_rate=args.corrupt_rate,
                     spline_latency_s=args.spline_latency, seed=args.seed)
@@ -321,6 +290,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"katana-emulator: cannot listen on {args.host}:{args.port}: {exc}", file=sys.stderr)
         return 1
     print(f"listening on tcp {host}:{port} (Katana {args.type} {args.variant})", flush=True)
+    if model.gripper_stall_at is not None:
+        print(f"closing fingers stall at encoder {model.gripper_stall_at}, as on a "
+              f"{args.block_width_m * 100:.1f} cm block", flush=True)
     if args.serial:
         print(f"serial (pseudo-terminal): {emulator.serve_pty()}", flush=True)
     print("=" * 72, flush=True)
