@@ -14,6 +14,11 @@ still within the margin moved inside it, and collision detection. A command the 
 refuses during set-up (0xC0, or a ``C`` reply with success byte 0) ends the set-up: the arm is
 frozen, the refusal is reported and goals are refused with it (``setup_problem``) until the
 next connection's set-up passes.
+
+With ``auto_setup`` false (katana_driver_node, a lifecycle node) a connection only opens the
+link, reads the identification, the master version and the first state (configure); the set-up
+runs when ``set_up()`` is called (activate). ``stop()`` ends the thread and closes the link
+(cleanup); ``start()`` opens it again, and a freeze owed since a lost link is sent first.
 """
 
 from __future__ import annotations
@@ -78,6 +83,7 @@ class ArmWorker(TrajectoryStreaming):
         limit_margin: int = DEFAULT_LIMIT_MARGIN_ENC,
         speed_limits: Sequence[int] = (p.KNI_MAX_VELOCITY,) * 6,
         acceleration_limits: Sequence[int] = (p.KNI_MAX_ACCELERATION,) * 6,
+        auto_setup: bool = True,
     ) -> None:
         self.client = KatanaClient(transport)
         self.transport = transport
@@ -87,6 +93,7 @@ class ArmWorker(TrajectoryStreaming):
         self.collision_detection = collision_detection
         self.reconnect_period = reconnect_period
         self.calibration_timeout = calibration_timeout
+        self.auto_setup = auto_setup
         self.status_every = max(1, status_every)
         self.on_state = on_state
         self._log_fn = log
@@ -104,6 +111,7 @@ class ArmWorker(TrajectoryStreaming):
         self.collision_message = ""
         self.polls = 0
         self.link_losses = 0
+        self.connect_attempts = 0  # connection attempts ended (either way), for wait_connection
         self._calibrated_once = False
         self._freeze_on_connect = False
         self._jobs: queue.Queue = queue.Queue()
@@ -116,16 +124,55 @@ class ArmWorker(TrajectoryStreaming):
         self._stream: Stream | None = None
         self._busy = 0
         self._busy_lock = threading.Lock()
-        self._thread = threading.Thread(target=self._run, name="katana-arm-worker", daemon=True)
+        self._thread: threading.Thread | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
+        """Start the thread: it connects (retrying every reconnect_period) and polls."""
+        if self._thread is not None and self._thread.is_alive():
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="katana-arm-worker", daemon=True)
         self._thread.start()
 
     def stop(self, timeout: float = 3.0) -> None:
+        """End the thread and close the link (jobs still queued fail); start() opens it again."""
         self._stop.set()
-        self._thread.join(timeout=timeout)
+        with self._cond:
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout=timeout)
         self.transport.close()
+        self.connected = False
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def wait_connection(self, timeout: float) -> bool:
+        """Wait (bounded) until the link is up or the next connection attempt has failed;
+        whether it is up."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            attempts = self.connect_attempts
+            while not self.connected and self.connect_attempts == attempts:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0 or self._stop.is_set():
+                    break
+                self._cond.wait(min(remaining, 0.1))
+        return self.connected
+
+    def set_up(self) -> Future:
+        """Run the set-up (limits, calibration probe, calibration when needed, collision
+        detection) in the worker thread; the Future is done when it has ended (``ready`` and
+        ``setup_problem`` say how). For ``auto_setup`` false: the lifecycle's activate."""
+        return self.submit(lambda _client: self._set_up_now())
+
+    def _set_up_now(self) -> None:
+        try:
+            self._setup()
+        except p.ControllerError as exc:
+            self._setup_refused(exc)
 
     def _log(self, level: str, message: str) -> None:
         if self._log_fn is not None:
@@ -236,6 +283,14 @@ class ArmWorker(TrajectoryStreaming):
 
     def _connect(self) -> bool:
         try:
+            return self._open_link()
+        finally:
+            with self._cond:
+                self.connect_attempts += 1
+                self._cond.notify_all()
+
+    def _open_link(self) -> bool:
+        try:
             self.transport.open()
             self.client.echo()
             self.identification = self.client.identification()
@@ -264,10 +319,14 @@ class ArmWorker(TrajectoryStreaming):
                     self._log("warn", "reconnected: froze the arm (the link was lost)")
                 except p.ControllerError as exc:
                     self._log("error", f"reconnected: could not freeze the arm: {exc}")
-            try:
-                self._setup()
-            except p.ControllerError as exc:
-                self._setup_refused(exc)
+            if self.auto_setup:
+                try:
+                    self._setup()
+                except p.ControllerError as exc:
+                    self._setup_refused(exc)
+            else:  # set_up() decides; until then the calibration is not known
+                self.calibrated = False
+                self.setup_problem = ""
         except TransportError as exc:
             self.transport.close()
             self.link_error = f"set-up failed: {exc}"
