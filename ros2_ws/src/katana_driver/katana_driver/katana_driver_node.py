@@ -37,9 +37,10 @@ from katana_description import arm_contract as ac
 from katana_description import gripper_contract as gc
 from katana_interfaces.srv import ResetWorld, SetMotors
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
-from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
+from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
@@ -63,13 +64,17 @@ SETUP_SLACK_S = 40.0
 KEEPER_PERIOD_S = 0.2
 
 
-class KatanaDriverNode(LifecycleNode):
+class KatanaDriverNode(LifecycleNodeMixin, Node):
     """Thin ROS layer over ArmWorker and core.motion: messages in, core calls, messages out;
-    the lifecycle transitions call the worker (start, set_up, stop_motion, stop)."""
+    the lifecycle transitions call the worker (start, set_up, stop_motion, stop).
 
-    def __init__(self, **kwargs) -> None:
-        kwargs.setdefault("node_name", "katana_driver_node")
-        super().__init__(**kwargs)
+    rclpy's LifecycleNode, with the lifecycle services in a callback group of their own (a
+    transition may calibrate for a minute: /diagnostics, in the default group, goes on)."""
+
+    def __init__(self, node_name: str = "katana_driver_node", **kwargs) -> None:
+        Node.__init__(self, node_name, **kwargs)
+        self._lifecycle_group = MutuallyExclusiveCallbackGroup()
+        LifecycleNodeMixin.__init__(self, callback_group=self._lifecycle_group)
         self.params = params = declare_parameters(self, PARAMS, cross_check)
         self.katana_type, self.variant = variant_of(params["model"])
         self.model = EncoderModel(self.variant)
@@ -113,9 +118,9 @@ class KatanaDriverNode(LifecycleNode):
         self.create_service(SetMotors, "~/set_motors", self._set_motors, callback_group=group)
         self.create_service(ResetWorld, "~/reset_world", self._reset_world, callback_group=group)
         self._guard_change_state()
-        # the keeper shares the lifecycle services' (mutually exclusive) default group, so a
+        # the keeper shares the lifecycle services' (mutually exclusive) group, so a
         # transition it starts never runs beside one a service call started
-        self.create_timer(KEEPER_PERIOD_S, self._keep)
+        self.create_timer(KEEPER_PERIOD_S, self._keep, callback_group=self._lifecycle_group)
         self.diagnostics = Diagnostics(
             self, {"controller": lambda: driver_health(self.worker, self.lifecycle_state())},
             hardware_id=f"katana {params['model']}")

@@ -357,7 +357,8 @@ class ArmWorker(TrajectoryStreaming):
         """A command refused during set-up: freeze the arm, report, refuse goals with it."""
         self.setup_problem = f"set-up stopped: {exc}"
         self._log("error", f"{self.setup_problem}; the arm is frozen and goals are refused "
-                           "until a new connection's set-up passes (restart the driver)")
+                           "until a new set-up passes (restart the driver, or activate it "
+                           "again)")
         try:
             self._freeze(self.client)
         except p.ControllerError as again:
