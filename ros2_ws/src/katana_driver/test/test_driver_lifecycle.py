@@ -180,6 +180,19 @@ def test_a_silent_controller_lands_in_error_processing_with_the_arm_frozen(lifec
     assert g.state() == "unconfigured"          # nothing brings it up again
 
 
+def test_a_lost_link_while_inactive_is_an_error_too(lifecycle, make_emulator):
+    """inactive -> errorprocessing -> unconfigured (rclpy offers no error transition from a
+    primary state: the driver's cleanup answers ERROR)."""
+    g = lifecycle(make_emulator(calibrated=True))
+    assert g.set(Transition.TRANSITION_CONFIGURE)
+    g.emulator.drop_connection()
+    assert g.spin_until(lambda: [(e.start_state.label, e.goal_state.label) for e in g.events][-2:]
+                        == [("cleaningup", "errorprocessing"),
+                            ("errorprocessing", "unconfigured")])
+    assert g.state() == "unconfigured" and not g.driver.worker.running
+    assert g.emulator.model.calibrations == 0 and _frozen(g)
+
+
 def test_a_reconnection_after_cleanup_does_not_recalibrate(lifecycle):
     g = lifecycle()
     assert g.set(Transition.TRANSITION_CONFIGURE) and g.set(Transition.TRANSITION_ACTIVATE)
