@@ -60,6 +60,9 @@ ERROR = TransitionCallbackReturn.ERROR
 CONFIGURED = ("inactive", "active")
 #: longest activation beyond calibration_timeout: limits, probe, back-off and inward moves, s
 SETUP_SLACK_S = 40.0
+#: requests of one connection, each with all its re-sends: echo, identification, master
+#: version, a poll (positions and status) and an owed freeze (flush, positions, six holds)
+CONNECT_REQUESTS = 13
 #: period of the keeper: arm_ready, faults of the link, autostart's next step, s
 KEEPER_PERIOD_S = 0.2
 
@@ -249,11 +252,10 @@ class KatanaDriverNode(LifecycleNodeMixin, Node):
         self._fault = ""
         self._losses_seen = self.worker.link_losses
         self.worker.start()
-        # every request of the first connection may use all its re-sends
-        if self.worker.wait_connection(8.0 * p["timeout"] * (p["retries"] + 1) + 1.0):
+        if self.worker.wait_connection(CONNECT_REQUESTS * p["timeout"] * (p["retries"] + 1)):
             return ""
         self.worker.stop(timeout=1.0)
-        return self.worker._not_connected_message()
+        return self.worker.not_connected_message()
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         return self._transition("activate", self._activate)
@@ -325,6 +327,7 @@ class KatanaDriverNode(LifecycleNodeMixin, Node):
         why = self._fault or f"a failed transition from {state.label}"
         self.worker.link_error = f"disconnected after an error: {why}"
         if problem:
+            self.worker.owe_freeze()
             self.get_logger().error(f"error processing: {problem}; the freeze is sent first on "
                                     "the next connection; use the emergency stop if it moves")
         else:
@@ -398,7 +401,7 @@ class KatanaDriverNode(LifecycleNodeMixin, Node):
         if self._active:
             return ""
         label = self.lifecycle_state()
-        why = f"; {self.worker._not_connected_message()}" if not self.worker.connected else ""
+        why = f"; {self.worker.not_connected_message()}" if not self.worker.connected else ""
         return (f"katana_driver_node is {label}, not active: goals run only while it is active "
                 f"(lifecycle activate){why}")
 

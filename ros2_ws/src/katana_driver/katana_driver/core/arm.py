@@ -213,7 +213,7 @@ class ArmWorker(TrajectoryStreaming):
         """Run ``fn(client)`` in the worker thread; the Future holds its result or error."""
         future: Future = Future()
         if not self.connected:
-            future.set_exception(NotConnected(self._not_connected_message()))
+            future.set_exception(NotConnected(self.not_connected_message()))
             return future
         self._jobs.put((fn, future))
         return future
@@ -222,8 +222,13 @@ class ArmWorker(TrajectoryStreaming):
         """submit() and wait; raises the job's exception or TimeoutError."""
         return self.submit(fn).result(timeout=timeout)
 
-    def _not_connected_message(self) -> str:
+    def not_connected_message(self) -> str:
+        """Why jobs fail now: no link, and why."""
         return f"no connection to the Katana controller ({self.link_error})"
+
+    def owe_freeze(self) -> None:
+        """Freeze the arm first thing on the next connection (a freeze that could not be sent)."""
+        self._freeze_on_connect = True
 
     def stop_motion(self) -> Future:
         """Freeze: empty the move buffers and hold every motor where it is."""
