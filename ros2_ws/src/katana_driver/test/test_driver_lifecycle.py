@@ -10,7 +10,11 @@ from pathlib import Path
 
 import pytest
 from control_msgs.action import FollowJointTrajectory
+from diagnostic_msgs.msg import DiagnosticArray
+from katana_common.health import OK, WARN
+from katana_common.qos import DIAGNOSTICS_QOS
 from katana_driver.core import protocol as p
+from katana_driver.health import driver_health
 from lifecycle_msgs.msg import State, Transition, TransitionEvent
 from lifecycle_msgs.srv import ChangeState, GetState
 from rclpy.action.client import GoalStatus
@@ -18,7 +22,7 @@ from rclpy.qos import QoSProfile
 from std_msgs.msg import Bool
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
-from test_driver_node import Graph, trajectory_goal  # noqa: E402
+from test_driver_node import Graph, gripper_goal, trajectory_goal  # noqa: E402
 
 pytestmark = pytest.mark.timeout(120)
 _ids = itertools.count()
@@ -100,7 +104,11 @@ def test_each_transition_does_what_its_state_means(lifecycle):
     assert g.driver.worker.identification
     assert emulator.model.calibrations == 0  # configure reads; it does not move or calibrate
     assert "inactive, not active" in g.refusal()
+    res = g.run_goal(g.gripper, gripper_goal(-0.2))
+    assert res.status == GoalStatus.STATUS_ABORTED and not res.result.reached_goal
     assert emulator.model.calibrations == 0
+    health = driver_health(g.driver.worker, g.driver.lifecycle_state())
+    assert health.level == WARN and "inactive: goals are refused" in health.message
 
     assert g.set(Transition.TRANSITION_ACTIVATE)
     assert g.state() == "active" and g.driver.ready
@@ -108,6 +116,7 @@ def test_each_transition_does_what_its_state_means(lifecycle):
     assert g.spin_until(lambda: g.arm_ready and g.arm_ready[-1] is True)
     res = g.run_goal(g.arm, trajectory_goal(NEAR))
     assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.error_string
+    assert driver_health(g.driver.worker, g.driver.lifecycle_state()).level == OK
 
     assert g.set(Transition.TRANSITION_DEACTIVATE)
     assert g.state() == "inactive" and g.driver.worker.connected
@@ -225,3 +234,24 @@ def test_autostart_activates_and_comes_back_after_an_error(lifecycle):
     assert g.set(Transition.TRANSITION_DEACTIVATE)  # as a lifecycle manager's request would
     g.spin_until(lambda: False, timeout_s=1.0)  # five keeper periods: it stays inactive
     assert g.driver.lifecycle_state() == "inactive" and not g.driver.ready
+
+
+def test_diagnostics_go_on_while_the_activation_calibrates(lifecycle, make_emulator):
+    """The lifecycle services have a callback group of their own: a calibration of 2 s inside
+    the activate call does not hold /diagnostics, which reports the state as activating."""
+    g = lifecycle(make_emulator(calibration_s=2.0))
+    assert g.set(Transition.TRANSITION_CONFIGURE)
+    states: list[str] = []
+
+    def on_diagnostics(msg):
+        for status in msg.status:
+            if status.name.endswith(": controller"):
+                states.extend(kv.value for kv in status.values if kv.key == "lifecycle_state")
+
+    g.client.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics,
+                                 DIAGNOSTICS_QOS)
+    activated = g.change.call_async(
+        ChangeState.Request(transition=Transition(id=Transition.TRANSITION_ACTIVATE)))
+    assert g.spin_until(lambda: "activating" in states)
+    assert g.spin_until(activated.done) and activated.result().success
+    assert g.emulator.model.calibrations == 1
