@@ -67,7 +67,7 @@ def _state_rates(host: str, port: int) -> dict:
             lambda m: got.append((to_seconds(m.header.stamp), time.monotonic())), 100)
         arm = ActionClient(probe, FollowJointTrajectory, "arm_controller/follow_joint_trajectory")
         deadline = time.monotonic() + 15.0
-        while time.monotonic() < deadline and not (node.worker.ready and arm.server_is_ready()):
+        while time.monotonic() < deadline and not (node.ready and arm.server_is_ready()):
             time.sleep(0.05)
         time.sleep(0.5)
         got.clear()

@@ -63,7 +63,7 @@ def test_executor_picks_and_places_on_the_emulated_arm(emulator, spline_latency_
         executor.add_node(node)
 
     try:
-        assert spin_until(executor, lambda: driver.worker.ready and client.server_is_ready(), 15.0)
+        assert spin_until(executor, lambda: driver.ready and client.server_is_ready(), 15.0)
         # Fresh from calibration every motor sits on its stop, where the executor's inverse
         # kinematics refuses to start; park first, as the experiment does.
         park = list(executor_node.planner.p.park_pose)

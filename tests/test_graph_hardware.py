@@ -81,7 +81,7 @@ def test_hardware_graph_starts_against_the_emulator_and_a_substitute_camera(
     graph_offers(g, probe, "services", EXPECTED_SERVICES)
     # the emulated controller is being talked to: the driver calibrated it
     driver = next(n for n in nodes if n.get_name() == "katana_driver_node")
-    g.wait_for(lambda: driver.worker.ready, timeout=30.0)
+    g.wait_for(lambda: driver.ready, timeout=30.0)
 
 
 @pytest.mark.timeout(600)

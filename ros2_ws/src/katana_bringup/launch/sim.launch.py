@@ -19,8 +19,11 @@ Same nodes and the same parameter files, in the same order, as the all-in-one ru
 use_sim_time for every node, then sim.yaml; or backend_hardware.yaml: wall time), then
 `params_file` when given (an overlay, as katana-run's --params). backend:=hardware starts
 katana_driver's arm driver and camera node (katana_camera), with
-katana_driver/config/hardware.yaml first. The packaged files are generated from the nodes'
-parameter specs (katana_bringup.config_files).
+katana_driver/config/hardware.yaml first. The driver is a lifecycle (managed) node, started
+as a LifecycleNode: it brings itself to active (its autostart parameter, true by default; the
+bring-up sequence lives in the node alone, so launch emits no transitions) and the graph waits
+for it (arm_ready is true only while the driver is active). The packaged files are generated
+from the nodes' parameter specs (katana_bringup.config_files).
 
 Watching: rviz:=true opens rviz2 with katana_description's rviz/katana.rviz; foxglove:=true
 starts foxglove_bridge (as katana-run --foxglove) for the Foxglove app. Either adds
@@ -37,7 +40,7 @@ from katana_description import models, urdf_path
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
+from launch_ros.actions import LifecycleNode, Node
 
 
 def _frame_nodes(frames: str, files: list[str]) -> list:
@@ -94,8 +97,9 @@ def _nodes(context) -> list:
                           parameters=files, output="screen"))
     else:
         nodes += [
-            Node(package="katana_driver", executable="katana_driver_node",
-                 name="katana_driver_node", parameters=[hardware, *files], output="screen"),
+            LifecycleNode(package="katana_driver", executable="katana_driver_node",
+                          name="katana_driver_node", namespace="",
+                          parameters=[hardware, *files], output="screen"),
             Node(package="katana_camera", executable="camera_node", name="camera_node",
                  parameters=[hardware, *files], output="screen"),
         ]

@@ -152,7 +152,7 @@ def test_launch_file_starts_the_same_nodes_with_a_backend_argument():
                 if getattr(c.func, "id", "") == "DeclareLaunchArgument"}
     assert declared["backend"]["default_value"] == "sim"
     nodes = {(kwargs(c)["package"], kwargs(c)["executable"]) for c in calls
-             if getattr(c.func, "id", "") == "Node" and "package" in kwargs(c)}
+             if getattr(c.func, "id", "") in ("Node", "LifecycleNode") and "package" in kwargs(c)}
     nodes |= {(t.elts[0].value, t.elts[1].value) for t in ast.walk(tree)
               if isinstance(t, ast.Tuple) and len(t.elts) == 2
               and all(isinstance(e, ast.Constant) and isinstance(e.value, str) for e in t.elts)
@@ -172,6 +172,20 @@ def test_launch_file_starts_the_same_nodes_with_a_backend_argument():
     assert "default_params_files(backend)" in text
 
 
+@pytest.mark.parametrize("path", ["katana_bringup/launch/sim.launch.py",
+                                  "katana_driver/launch/katana_hardware.launch.py"])
+def test_launch_files_start_the_driver_as_a_lifecycle_node(path):
+    """launch_ros's LifecycleNode (its name and namespace given, as it requires); the node's
+    own autostart brings it to active, so no launch file emits a transition of its own."""
+    tree = ast.parse((SRC / path).read_text())
+    calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call)]
+    drivers = [c for c in calls if getattr(c.func, "id", "") == "LifecycleNode"]
+    assert len(drivers) == 1
+    keywords = {k.arg for k in drivers[0].keywords}
+    assert {"package", "executable", "name", "namespace", "parameters"} <= keywords
+    assert not [c for c in calls if getattr(c.func, "id", "") in ("ChangeState", "EmitEvent")]
+
+
 def _launch_module(monkeypatch, path: Path):
     """A launch file imported with stand-ins for launch and launch_ros (not on PyPI): each
     Node(...) is the dict of its keyword arguments."""
@@ -182,6 +196,7 @@ def _launch_module(monkeypatch, path: Path):
         lambda *a, **k: (a, k))
     fakes["launch.substitutions"].LaunchConfiguration = lambda name: name
     fakes["launch_ros.actions"].Node = lambda **kwargs: kwargs
+    fakes["launch_ros.actions"].LifecycleNode = lambda **kwargs: kwargs
     for name, module in fakes.items():
         monkeypatch.setitem(sys.modules, name, module)
     spec = importlib.util.spec_from_file_location(path.stem.replace(".", "_"), path)

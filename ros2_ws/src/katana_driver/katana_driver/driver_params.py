@@ -2,7 +2,8 @@
 
 Live: poll_rate, reconnect_period, max_trajectory_s and the goal defaults (tolerances, settle
 and stall times): they change how the next poll or goal runs. Read-only: what the link, the
-arm model and the controller's set-up were opened with (a change would need a reconnection).
+arm model and the controller's set-up were opened with (a change would need a reconnection),
+and autostart (whether the node brings itself to active or waits for its transitions).
 """
 
 from __future__ import annotations
@@ -20,6 +21,10 @@ PARAMS = (
     Param("host", "192.168.1.1", "controller address (TCP)", nonempty=True),
     Param("port", 5566, "controller TCP port", low=1, high=65535),
     Param("serial_device", "/dev/ttyUSB0", "serial device (Katana 300)", nonempty=True),
+    Param("autostart", True, "bring the driver to active (configure, activate) at start and "
+          "again after an error, retrying configure every reconnect_period while the controller "
+          "does not answer, as nav2's lifecycle manager does; false: it stays unconfigured "
+          "until a lifecycle transition is requested (launch events, ros2 lifecycle set)"),
     Param("calibrate_on_startup", True, "calibrate when the arm is not (after every power-on)"),
     Param("calibration_timeout", 120.0, "longest calibration run, s", low=1.0, high=600.0),
     Param("poll_rate", 25.0, "joint_states polling rate, Hz", low=1.0, high=50.0, live=True),

@@ -19,13 +19,15 @@ STATUS_NAMES = {
 }
 
 
-def driver_health(worker: ArmWorker) -> Health:
+def driver_health(worker: ArmWorker, lifecycle: str = "active") -> Health:
     """ERROR without a link or after a set-up problem or a collision, WARN while connected but
-    not ready (calibrating, waiting for the first poll), OK when goals can run."""
+    not ready (calibrating, waiting for the first poll) or not active (``lifecycle``, the
+    node's lifecycle state: goals are refused), OK when goals can run."""
     stats = worker.transport.stats
     latencies = list(stats.latency_s)
     status = worker.state.status if worker.state is not None else []
     values: dict[str, object] = {
+        "lifecycle_state": lifecycle,
         "connected": worker.connected,
         "calibrated": worker.calibrated,
         "master_version": ".".join(map(str, worker.master_version or ())) or "unknown",
@@ -46,6 +48,9 @@ def driver_health(worker: ArmWorker) -> Health:
         return Health(ERROR, f"set-up stopped: {worker.setup_problem}", values)
     if worker.collision_message:
         return Health(ERROR, worker.collision_message, values)
+    if lifecycle != "active":
+        return Health(WARN, f"connected, {lifecycle}: goals are refused until it is active",
+                      values)
     if not worker.ready:
         return Health(WARN, "connected, calibrating" if not worker.calibrated
                       else "connected, not ready yet", values)

@@ -165,7 +165,7 @@ class FaultBench:
 
     def wait_ready(self, limit_s: float = 15.0) -> bool:
         return self.spin_until(
-            lambda: self.driver.worker.ready and self.arm.server_is_ready(), limit_s
+            lambda: self.driver.ready and self.arm.server_is_ready(), limit_s
         )
 
     def run_goal(

@@ -44,9 +44,9 @@ def test_hardware_nodes_run_against_the_emulator(make_emulator):
         executor.add_node(node)
     try:
         deadline = time.monotonic() + 15.0
-        while time.monotonic() < deadline and not (states and images and nodes[0].worker.ready):
+        while time.monotonic() < deadline and not (states and images and nodes[0].ready):
             executor.spin_once(timeout_sec=0.05)
-        assert states and images and nodes[0].worker.ready
+        assert states and images and nodes[0].ready
         names = dict(probe.get_topic_names_and_types())
         assert "/lab/arm_controller/follow_joint_trajectory/_action/status" in names
         assert "/lab/camera/camera_info" in names

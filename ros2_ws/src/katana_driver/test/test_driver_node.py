@@ -73,7 +73,7 @@ class Graph:
     def ready(self):
         # ready and every arm motor holding: calibration's last moves may still be running
         # when the driver reports ready (seen in CI: motor 2 moving as a refused goal ended)
-        assert self.spin_until(lambda: self.driver.worker.ready and len(self.states) > 2
+        assert self.spin_until(lambda: self.driver.ready and len(self.states) > 2
                                and self.driver.worker.state.status[:5]
                                == [p.STATUS_HOLDING] * 5)
         assert self.spin_until(self.arm.server_is_ready)
@@ -271,7 +271,7 @@ def test_lost_connection_is_reported_and_recovered(graph):
     g.ready()
     g.emulator.drop_connection()
     assert g.spin_until(lambda: g.driver.worker.link_losses == 1)
-    assert g.spin_until(lambda: g.driver.worker.ready)
+    assert g.spin_until(lambda: g.driver.ready)
     count = len(g.states)
     assert g.spin_until(lambda: len(g.states) > count + 5)
 
@@ -570,7 +570,7 @@ def test_a_segment_the_controller_refuses_ends_the_goal_and_freezes_the_arm(grap
     emulator = make_emulator(calibrated=True)
     emulator.model.refuse_within = 0  # the set-up's back-off, inside no margin, goes through
     g = graph(emulator, limit_margin_encoders=0)
-    assert g.spin_until(lambda: g.driver.worker.ready)
+    assert g.spin_until(lambda: g.driver.ready)
     assert g.spin_until(g.arm.server_is_ready)
     g.emulator.model.refuse_within = 200
     near = EncoderModel().encoder_to_angle(1, 31000 - 100)

@@ -14,6 +14,11 @@ still within the margin moved inside it, and collision detection. A command the 
 refuses during set-up (0xC0, or a ``C`` reply with success byte 0) ends the set-up: the arm is
 frozen, the refusal is reported and goals are refused with it (``setup_problem``) until the
 next connection's set-up passes.
+
+With ``auto_setup`` false (katana_driver_node, a lifecycle node) a connection only opens the
+link, reads the identification, the master version and the first state (configure); the set-up
+runs when ``set_up()`` is called (activate). ``stop()`` ends the thread and closes the link
+(cleanup); ``start()`` opens it again, and a freeze owed since a lost link is sent first.
 """
 
 from __future__ import annotations
@@ -78,6 +83,7 @@ class ArmWorker(TrajectoryStreaming):
         limit_margin: int = DEFAULT_LIMIT_MARGIN_ENC,
         speed_limits: Sequence[int] = (p.KNI_MAX_VELOCITY,) * 6,
         acceleration_limits: Sequence[int] = (p.KNI_MAX_ACCELERATION,) * 6,
+        auto_setup: bool = True,
     ) -> None:
         self.client = KatanaClient(transport)
         self.transport = transport
@@ -87,6 +93,7 @@ class ArmWorker(TrajectoryStreaming):
         self.collision_detection = collision_detection
         self.reconnect_period = reconnect_period
         self.calibration_timeout = calibration_timeout
+        self.auto_setup = auto_setup
         self.status_every = max(1, status_every)
         self.on_state = on_state
         self._log_fn = log
@@ -100,10 +107,13 @@ class ArmWorker(TrajectoryStreaming):
         self.setup_problem = ""  # why the last set-up stopped ('' when it passed)
         self.identification = ""
         self.master_version: tuple[int, int] | None = None
+        #: why the connected controller is not driven at all ('' when it is): KNI's version check
+        self.controller_refusal = ""
         self.link_error = "not connected yet"
         self.collision_message = ""
         self.polls = 0
         self.link_losses = 0
+        self.connect_attempts = 0  # connection attempts ended (either way), for wait_connection
         self._calibrated_once = False
         self._freeze_on_connect = False
         self._jobs: queue.Queue = queue.Queue()
@@ -116,16 +126,57 @@ class ArmWorker(TrajectoryStreaming):
         self._stream: Stream | None = None
         self._busy = 0
         self._busy_lock = threading.Lock()
-        self._thread = threading.Thread(target=self._run, name="katana-arm-worker", daemon=True)
+        self._thread: threading.Thread | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
+        """Start the thread: it connects (retrying every reconnect_period) and polls."""
+        if self._thread is not None and self._thread.is_alive():
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="katana-arm-worker", daemon=True)
         self._thread.start()
 
     def stop(self, timeout: float = 3.0) -> None:
+        """End the thread and close the link (jobs still queued fail); start() opens it again."""
         self._stop.set()
-        self._thread.join(timeout=timeout)
+        with self._cond:
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout=timeout)
         self.transport.close()
+        self.connected = False
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def wait_connection(self, timeout: float) -> bool:
+        """Wait (bounded) until the link is up or the next connection attempt has failed;
+        whether it is up."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            attempts = self.connect_attempts
+            while not self.connected and self.connect_attempts == attempts:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0 or self._stop.is_set():
+                    break
+                self._cond.wait(min(remaining, 0.1))
+        return self.connected
+
+    def set_up(self) -> Future:
+        """Run the set-up (limits, calibration probe, calibration when needed, collision
+        detection) in the worker thread; the Future is done when it has ended (``ready`` and
+        ``setup_problem`` say how). For ``auto_setup`` false: the lifecycle's activate."""
+        return self.submit(lambda _client: self._set_up_now())
+
+    def _set_up_now(self) -> None:
+        if self.controller_refusal:
+            return  # refused at the connection (its setup_problem says why): no command
+        try:
+            self._setup()
+        except p.ControllerError as exc:
+            self._setup_refused(exc)
 
     def _log(self, level: str, message: str) -> None:
         if self._log_fn is not None:
@@ -166,7 +217,7 @@ class ArmWorker(TrajectoryStreaming):
         """Run ``fn(client)`` in the worker thread; the Future holds its result or error."""
         future: Future = Future()
         if not self.connected:
-            future.set_exception(NotConnected(self._not_connected_message()))
+            future.set_exception(NotConnected(self.not_connected_message()))
             return future
         self._jobs.put((fn, future))
         return future
@@ -175,8 +226,13 @@ class ArmWorker(TrajectoryStreaming):
         """submit() and wait; raises the job's exception or TimeoutError."""
         return self.submit(fn).result(timeout=timeout)
 
-    def _not_connected_message(self) -> str:
+    def not_connected_message(self) -> str:
+        """Why jobs fail now: no link, and why."""
         return f"no connection to the Katana controller ({self.link_error})"
+
+    def owe_freeze(self) -> None:
+        """Freeze the arm first thing on the next connection (a freeze that could not be sent)."""
+        self._freeze_on_connect = True
 
     def stop_motion(self) -> Future:
         """Freeze: empty the move buffers and hold every motor where it is."""
@@ -236,6 +292,14 @@ class ArmWorker(TrajectoryStreaming):
 
     def _connect(self) -> bool:
         try:
+            return self._open_link()
+        finally:
+            with self._cond:
+                self.connect_attempts += 1
+                self._cond.notify_all()
+
+    def _open_link(self) -> bool:
+        try:
             self.transport.open()
             self.client.echo()
             self.identification = self.client.identification()
@@ -253,8 +317,9 @@ class ArmWorker(TrajectoryStreaming):
         if "EMULATOR" in self.identification.upper():
             self._log("warn", "the controller is the katana-emulator, not a real arm")
         refused = self.master_version[0] > KNI_MAX_450_MASTER_VERSION
+        self.controller_refusal = ""
         if refused:  # KNI exits here ("Incompatible Config File"): send it no command at all
-            self.setup_problem = (
+            self.controller_refusal = self.setup_problem = (
                 f"set-up refused: master version {self.master_version[0]} is above "
                 f"{KNI_MAX_450_MASTER_VERSION}, and KNI refuses such a controller as a Katana "
                 "400/450 (docs/hardware.md, first power-on checklist)")
@@ -279,10 +344,11 @@ class ArmWorker(TrajectoryStreaming):
                 self._log("warn", "reconnected: froze the arm (the link was lost)")
             except p.ControllerError as exc:
                 self._log("error", f"reconnected: could not freeze the arm: {exc}")
-        try:
-            self._setup()
-        except p.ControllerError as exc:
-            self._setup_refused(exc)
+        if self.auto_setup:
+            self._set_up_now()
+        else:  # set_up() decides; until then the calibration is not known
+            self.calibrated = False
+            self.setup_problem = ""
 
     def _setup(self) -> None:
         self.setup_problem = ""
@@ -305,7 +371,8 @@ class ArmWorker(TrajectoryStreaming):
         """A command refused during set-up: freeze the arm, report, refuse goals with it."""
         self.setup_problem = f"set-up stopped: {exc}"
         self._log("error", f"{self.setup_problem}; the arm is frozen and goals are refused "
-                           "until a new connection's set-up passes (restart the driver)")
+                           "until a new set-up passes (restart the driver, or activate it "
+                           "again)")
         try:
             self._freeze(self.client)
         except p.ControllerError as again:
