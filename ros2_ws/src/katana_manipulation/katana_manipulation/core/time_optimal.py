@@ -114,22 +114,30 @@ def time_optimal(points: Sequence[Sequence[float]], vmax: Sequence[float],
         xmax = np.minimum(xmax, np.minimum(cap, np.concatenate([cap[1:], cap[-1:]])))
     xmax[0] = xmax[-1] = 0.0
     moving = np.abs(b) > _TINY
-    beta = np.where(moving, c / np.where(moving, b, 1.0), 0.0)
-    r = np.where(moving, a / np.where(moving, np.abs(b), 1.0), np.inf)
-    # backward: the largest x at s_i from which x_{i+1} <= k[i+1] is still reachable,
-    # x + 2 ds u_min(x) <= k_next with u_min(x) = max_j(-beta_j x - r_j)
-    k = xmax.copy()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        beta = np.where(moving, c / np.where(moving, b, 1.0), 0.0)
+        step = 2.0 * ds[:, None] * np.where(moving, a / np.where(moving, np.abs(b), 1.0), 0.0)
+    g = 1.0 - 2.0 * ds[:, None] * beta
+    # x_{i+1} = x_i + 2 ds u_i, u_i in [max_j(-beta_j x_i - r_j), min_j(-beta_j x_i + r_j)]
+    # over the moving rows j: x_{i+1} in [max_j(g_j x_i - step_j), min_j(g_j x_i + step_j)].
+    # Plain Python over the few rows of each interval: numpy's per-call cost would dominate.
+    rows = [[(gj, sj) for gj, sj, mj in zip(gi, si, mi, strict=True) if mj]
+            for gi, si, mi in zip(g.tolist(), step.tolist(), moving.tolist(), strict=True)]
+    # backward: the largest x at s_i from which x_{i+1} <= k[i+1] is still reachable
+    k = xmax.tolist()
     for i in range(len(s) - 2, -1, -1):
-        g = 1.0 - 2.0 * ds[i] * beta[i]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lim = np.where(moving[i] & (g > _TINY),
-                           (k[i + 1] + 2.0 * ds[i] * r[i]) / np.where(g > _TINY, g, 1.0), np.inf)
-        k[i] = max(0.0, min(k[i], float(lim.min())))
+        for gj, sj in rows[i]:
+            if gj > _TINY:
+                k[i] = min(k[i], (k[i + 1] + sj) / gj)
+        k[i] = max(k[i], 0.0)
     # forward: as fast as the limits and the controllable set allow
-    x = np.zeros_like(s)
+    x = [0.0] * len(s)
     for i in range(len(s) - 1):
-        u_max = float(np.min(np.where(moving[i], -beta[i] * x[i] + r[i], np.inf)))
-        x[i + 1] = max(0.0, min(k[i + 1], x[i] + 2.0 * ds[i] * u_max))
+        nxt = k[i + 1]
+        for gj, sj in rows[i]:
+            nxt = min(nxt, gj * x[i] + sj)
+        x[i + 1] = max(0.0, nxt)
+    x = np.array(x)
     sdot = np.sqrt(x)
     with np.errstate(divide="ignore"):
         dt = np.where(sdot[:-1] + sdot[1:] > 0.0, 2.0 * ds / (sdot[:-1] + sdot[1:]), np.inf)
