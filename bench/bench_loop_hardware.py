@@ -9,6 +9,8 @@ holding one. Every spline segment the emulator accepts is recorded; an experimen
 the sum of its arm segments' durations, and its least time is core.time_optimal's on the
 knots the driver sent, each rest-to-rest move on its own (a move ends where every arm joint is
 at rest). The floor of the loop is that motion: the target is at most motion + 1 s.
+`between_moves_s` is the time from the end of one move to the sending of the next within an
+experiment (the grips and checks between them, and the goals' round trips).
 """
 
 from __future__ import annotations
@@ -132,11 +134,14 @@ def run() -> dict:
     records = [json.loads(line) for line in experiences.read_text().splitlines()][:EXPERIMENTS]
     walls = [r["wall_time"] for r in records]
     moves = _moves(_rows(recorded))
-    motion, least = [], []
+    motion, least, idle = [], [], []
     for a, b in zip(walls[:-1], walls[1:], strict=True):  # the moves logged with experiment b
         inside = [mv for mv in moves if a < mv[0] <= b]
         motion.append(sum(mv[1] for mv in inside))
         least.append(sum(minimum_time(mv[2], MAX_SPEED, MAX_ACCEL) for mv in inside))
+        # from the end of one move to the sending of the next: grips, checks, goal round trips
+        idle.append(sum(max(0.0, n[0] - (m[0] + m[1]))
+                        for m, n in zip(inside[:-1], inside[1:], strict=True)))
     gaps = [b - a for a, b in zip(walls[:-1], walls[1:], strict=True)]
     stages = {k: statistics.median(r["stage_s"][k] for r in records if k in r["stage_s"])
               for k in sorted({k for r in records for k in r["stage_s"]})}
@@ -156,6 +161,7 @@ def run() -> dict:
         "floor_s": round(motion_s, 3),
         "overhead_s": round(s_per - motion_s, 3),
         "moves_per_experiment": round(len(moves) / max(len(gaps), 1), 2),
+        "between_moves_s": round(statistics.median(idle), 3),
         "targets": TARGETS,
     }
 

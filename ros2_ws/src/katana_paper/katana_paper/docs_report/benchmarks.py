@@ -213,7 +213,9 @@ def bench_loop_hardware(data: Json) -> str:
                 table(("stage", "median s"), [(f"`{k}`", num(v)) for k, v in stages.items()]),
                 ""]
     out.append(f"{num(get(data, 'experiments'))} gaps between logged experiments; "
-               f"{num(get(data, 'moves_per_experiment'), 1)} arm moves per experiment.")
+               f"{num(get(data, 'moves_per_experiment'), 1)} arm moves per experiment, "
+               f"{num(get(data, 'between_moves_s'), 2)} s (median) from the end of one to the "
+               "sending of the next within an experiment.")
     return "\n".join(out)
 
 
