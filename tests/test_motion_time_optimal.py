@@ -138,3 +138,6 @@ def test_a_pick_and_place_moves_within_one_and_a_half_times_the_least_time(
     planned, least = _motion(segments)
     assert least > 0.0
     assert planned <= 1.5 * least, (planned, least)
+    again = pp.PickPlacePlanner().plan(req, m.PARK_POSE)  # deterministic
+    assert [(s.times, s.points, s.velocities) for s in again] == \
+        [(s.times, s.points, s.velocities) for s in segments]
