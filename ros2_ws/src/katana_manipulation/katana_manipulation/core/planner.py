@@ -53,17 +53,6 @@ def _ticks(seconds: np.ndarray) -> np.ndarray:
     return np.ceil(np.asarray(seconds, float) / TICK_S - 1e-9)
 
 
-def _through_velocities(dq: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """Velocities at the points (at rest at both ends): the harmonic mean of the neighbouring
-    segments' mean speeds where a joint keeps moving the same way, else 0."""
-    slope = dq / h[:, None]
-    v = np.zeros((len(dq) + 1, dq.shape[1]))
-    a, b = slope[:-1], slope[1:]
-    same = a * b > 0
-    v[1:-1] = np.where(same, 2.0 * a * b / np.where(same, a + b, 1.0), 0.0)
-    return v
-
-
 def hermite_peaks(q: np.ndarray, v: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Peak |speed| and |acceleration| (segments x joints) of the cubic Hermite spline through
     the points ``q`` with velocities ``v``, segment durations ``h``: its speed is a quadratic in
@@ -171,7 +160,7 @@ class PickPlacePlanner:
         """The knots (the waypoints and points of the time-optimal motion between them), their
         velocities on it, and the segments' durations in whole ticks."""
         prof = time_optimal(qs, vmax, amax, min_segment_time=self.p.min_segment_time)
-        t_way, _ = prof.at_knots()
+        t_way = prof.knot_times()
         piece = max(self.p.cruise_piece_s, self.p.min_segment_time)
         times, way_at = [0.0], [0]
         for a, b in zip(t_way[:-1], t_way[1:], strict=True):

@@ -42,11 +42,9 @@ class Profile:
     def duration(self) -> float:
         return float(self.t[-1]) if len(self.t) else 0.0
 
-    def at_knots(self) -> tuple[np.ndarray, np.ndarray]:
-        """(times, joint velocities) at the waypoints."""
-        t = np.interp(self.s_knots, self.s, self.t)
-        sdot = np.interp(self.s_knots, self.s, self.sdot)
-        return t, self.path(self.s_knots, 1) * sdot[:, None]
+    def knot_times(self) -> np.ndarray:
+        """When the waypoints are passed."""
+        return np.interp(self.s_knots, self.s, self.t)
 
 
 def waypoint_path(points: Sequence[Sequence[float]]) -> tuple[PchipInterpolator, np.ndarray]:
