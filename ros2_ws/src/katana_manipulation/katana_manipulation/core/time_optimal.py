@@ -7,11 +7,12 @@ joint stops at a waypoint where it turns back, as the planner's own timing makes
 path q(s) the speed s' and acceleration s'' obey, per joint j, |q_j' s'| <= v_j and
 |q_j' s'' + q_j'' s'^2| <= a_j. On a fine grid of s, x = s'^2 is pushed as high as those allow
 by a backward pass (the largest x from which the arm can still stop in time) and a forward pass
-(the largest x reachable from rest), constant s'' on each grid interval (the discretisation of
-TOPP-RA, Pham and Pham 2018, with its one-dimensional sets written in closed form).
+(the largest x reachable from rest), constant s'' on each grid interval and the limits held at
+both its ends (the interpolation discretisation of TOPP-RA, Pham and Pham 2018, with its
+one-dimensional sets written in closed form).
 
-toppra (PyPI) computes the same but needs matplotlib at run time; this is the same reachability
-pass for box limits in numpy, about 60 lines.
+toppra (PyPI) computes the same but needs matplotlib at run time; for box limits the
+reachability passes are a few lines here.
 """
 
 from __future__ import annotations
@@ -47,7 +48,8 @@ class Profile:
         return np.interp(self.s_knots, self.s, self.t)
 
 
-def waypoint_path(points: Sequence[Sequence[float]]) -> tuple[PchipInterpolator, np.ndarray]:
+def waypoint_path(
+        points: Sequence[Sequence[float]]) -> tuple[PchipInterpolator | None, np.ndarray]:
     """The monotone cubic through the points (repeated ones dropped) over their cumulative
     Euclidean joint-space distance, and the points' parameters."""
     q = np.atleast_2d(np.asarray(points, float))
