@@ -88,7 +88,8 @@ class PickPlaceParams:
     # target, the driver's rounding to whole encoders)
     accel_fraction: float = 0.85
     min_segment_time: float = MIN_SEGMENT_TIME_S
-    cruise_piece_s: float = 0.25  # long moves are cut into pieces of about this duration
+    # a stretch between waypoints gets points of its optimal motion about this far apart
+    cruise_piece_s: float = 0.25
     transit_lift_rad: float = 0.2  # shoulder raised from the top-down transit pose
     clear_stack_blocks: int = 3  # leaving a place, clear stacks this high (with a held block)
     clearance: float = 0.005  # above a stack top, for the lowest pad or held-block point

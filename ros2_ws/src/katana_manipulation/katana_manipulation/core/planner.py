@@ -35,6 +35,7 @@ from katana_manipulation.core.pick_place_types import (
     unreachable_code,
 )
 from katana_manipulation.core.reach import pick_reach, place_reach
+from katana_manipulation.core.time_optimal import time_optimal
 
 TICK_S = m.CONTROL_TICK_S
 #: a segment whose cubic breaks a limit stretches by at most this factor (and at least a
@@ -50,17 +51,6 @@ def _finite(values) -> bool:
 def _ticks(seconds: np.ndarray) -> np.ndarray:
     """Durations rounded up to whole controller ticks (the driver runs its splines on them)."""
     return np.ceil(np.asarray(seconds, float) / TICK_S - 1e-9)
-
-
-def _through_velocities(dq: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """Velocities at the points (at rest at both ends): the harmonic mean of the neighbouring
-    segments' mean speeds where a joint keeps moving the same way, else 0."""
-    slope = dq / h[:, None]
-    v = np.zeros((len(dq) + 1, dq.shape[1]))
-    a, b = slope[:-1], slope[1:]
-    same = a * b > 0
-    v[1:-1] = np.where(same, 2.0 * a * b / np.where(same, a + b, 1.0), 0.0)
-    return v
 
 
 def hermite_peaks(q: np.ndarray, v: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -119,47 +109,40 @@ class PickPlacePlanner:
 
     # ------------------------------------------------------------ helpers
     def timed(self, start: Sequence[float], points: list[np.ndarray]) -> tuple[list, list, list]:
-        """Times from start and velocities for the waypoints (repeated ones dropped).
+        """Times from start and velocities for the waypoints (repeated ones dropped), near the
+        least time the limits allow on their path.
 
-        The arm starts and ends at rest; at an interior waypoint a joint that keeps moving the
-        same way passes through at the harmonic mean of its neighbouring segments' mean speeds
-        (monotone, as in Fritsch-Carlson), so a multi-point move does not stop at each point.
-        Segment times, whole 10 ms controller ticks, then stretch until every cubic Hermite
-        segment peaks within speed_fraction of the speed limits and accel_fraction of the
-        controller's acceleration limits (kinematics.MAX_ACCEL, the arm contract's). Should
-        that not settle, every point becomes a stop, each segment timed on its own: a cubic
-        from rest to rest over h peaks at 1.5 d / h and 6 d / h^2.
-
-        A long segment is first cut into pieces of about `cruise_piece_s` along its straight line
-        in joint space: one cubic from rest to rest peaks at 1.5 times its mean speed, so a long
-        pan would crawl at 60 % of the limit on average; through the pieces the joints cruise
-        near the limit, on the same joint-space path."""
+        The time-optimal motion (core.time_optimal) through the waypoints, within
+        speed_fraction of the speed limits and accel_fraction of the controller's acceleration
+        limits (kinematics.MAX_ACCEL, the arm contract's), no stretch between waypoints quicker
+        than min_segment_time, gives each waypoint a time and a velocity. A stretch that lasts
+        longer than `cruise_piece_s` gets points of that motion in between, at equal times, so
+        the cubic Hermite segments the driver and the simulation follow (acceleration linear in
+        time) trace its accelerate-cruise-brake profile closely. Times are rounded up to whole
+        10 ms controller ticks; a segment whose cubic still peaks above a limit is lengthened a
+        little at a time, its end velocities slowed in proportion. Should that not settle,
+        every point becomes a stop, each segment timed on its own: a cubic from rest to rest
+        over h peaks at 1.5 d / h and 6 d / h^2."""
         vmax = MAX_SPEED * self.p.speed_fraction
         amax = MAX_ACCEL * self.p.accel_fraction
         q = [np.asarray(start, float)]
         for pt in points:
             pt = np.asarray(pt, float)
-            if np.max(np.abs(pt - q[-1])) < 1e-3:  # no move worth a segment
-                continue
-            pieces = int(round(np.max(np.abs(pt - q[-1]) / vmax) / self.p.cruise_piece_s))
-            pieces = min(max(pieces, 1), 8)
-            for k in range(1, pieces):  # targets, so within the limit margin (even when
-                # the arm starts inside it: the pieces move out of it at once)
-                q.append(np.clip(q[-1] + (pt - q[-1]) / (pieces - k + 1),
-                                 self.kin.lower, self.kin.upper))
-            q.append(pt)
+            if np.max(np.abs(pt - q[-1])) >= 1e-3:  # else no move worth a segment
+                q.append(pt)
         if len(q) == 1:
             return [], [], []
-        qs = np.array(q)
+        qs, v_opt, ticks = self._optimal_knots(np.array(q), vmax, amax)
         dq = np.diff(qs, axis=0)
-        ticks = _ticks(np.maximum(self.p.min_segment_time, np.max(np.abs(dq) / vmax, axis=1)))
+        ticks0 = ticks.copy()
         for _ in range(STRETCH_STEPS):
-            v = _through_velocities(dq, ticks * TICK_S)
+            slow = ticks0 / ticks  # a segment made longer passes its ends slower
+            v = v_opt * np.minimum(np.concatenate([[1.0], slow]), np.concatenate([slow, [1.0]]))[
+                :, None]
             speed, accel = hermite_peaks(qs, v, ticks * TICK_S)
             stretch = np.max(np.maximum(speed / vmax, np.sqrt(accel / amax)), axis=1)
             if np.all(stretch <= 1.0):
                 break
-            # a little at a time: a longer segment slows its neighbours' ends down too
             grow = np.minimum(stretch, STRETCH_STEP)
             ticks = np.where(stretch > 1.0,
                              np.maximum(_ticks(ticks * TICK_S * grow), ticks + 1), ticks)
@@ -171,6 +154,35 @@ class PickPlacePlanner:
         times = np.cumsum(ticks) * TICK_S
         return ([list(map(float, row)) for row in qs[1:]], [float(t) for t in times],
                 [list(map(float, row)) for row in v[1:]])
+
+    def _optimal_knots(self, qs: np.ndarray, vmax: np.ndarray,
+                       amax: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The knots (the waypoints and points of the time-optimal motion between them), their
+        velocities on it, and the segments' durations in whole ticks."""
+        prof = time_optimal(qs, vmax, amax, min_segment_time=self.p.min_segment_time)
+        t_way = prof.knot_times()
+        piece = max(self.p.cruise_piece_s, self.p.min_segment_time)
+        times, way_at = [0.0], [0]
+        for a, b in zip(t_way[:-1], t_way[1:], strict=True):
+            n = max(int(round((b - a) / piece)), 1)
+            times += [a + (b - a) * k / n for k in range(1, n)] + [b]
+            way_at.append(len(times) - 1)
+        times = np.array(times)
+        s = np.interp(times, prof.t, prof.s)
+        s[way_at] = prof.s_knots  # the waypoints exactly
+        sdot = np.interp(s, prof.s, prof.sdot)
+        knots = prof.path(s)
+        vel = prof.path(s, 1) * sdot[:, None]
+        way = np.zeros(len(s), bool)
+        way[way_at] = True
+        knots[way] = qs
+        # points in between are targets too, so inside the limit margin: one outside it (the
+        # first stretch may start there, where the arm is) is left out
+        keep = way | np.all((knots >= self.kin.lower) & (knots <= self.kin.upper), axis=1)
+        knots, vel, times = knots[keep], vel[keep], times[keep]
+        vel[0] = vel[-1] = 0.0
+        ticks = np.maximum(_ticks(np.diff(times)), round(self.p.min_segment_time / TICK_S))
+        return knots, vel, ticks
 
     def _ik(self, xyz, yaw: float, period: float, q5_pref: float, what: str) -> np.ndarray:
         try:

@@ -188,6 +188,37 @@ def bench_loop(data: Json) -> str:
     return "\n".join(out)
 
 
+def bench_loop_hardware(data: Json) -> str:
+    """Seconds per experiment against the emulator beside the arm's motion in it, and that
+    motion beside the least time its limits allow."""
+    targets = get(data, "targets", default={}) or {}
+    spe, motion, least = (get(data, k) for k in ("s_per_experiment", "motion_s", "motion_min_s"))
+    over = targets.get("overhead_s")
+    rows = [
+        ("seconds per experiment, real time (median)", num(spe, 2),
+         f"the arm's motion per experiment: {num(motion, 2)}", ratio(spe, motion),
+         f"at most motion + {num(over, 1)} s" + ((" (met)" if spe <= motion + over else
+                                                   " (not met)")
+                                                  if finite(spe) and finite(motion)
+                                                  and finite(over) else "")),
+        ("the arm's motion per experiment, s (median)", num(motion, 2),
+         f"the least its speed and acceleration limits allow on the same paths: {num(least, 2)}",
+         ratio(motion, least), met_text(get(data, "motion_over_min"),
+                                        targets.get("motion_over_min"))),
+    ]
+    out = [table(SPEED_HEADER, rows), ""]
+    stages = get(data, "stage_median_s", default={}) or {}
+    if stages:
+        out += ["Stage medians as the curiosity node logs them:", "",
+                table(("stage", "median s"), [(f"`{k}`", num(v)) for k, v in stages.items()]),
+                ""]
+    out.append(f"{num(get(data, 'experiments'))} gaps between logged experiments; "
+               f"{num(get(data, 'moves_per_experiment'), 1)} arm moves per experiment, "
+               f"{num(get(data, 'between_moves_s'), 2)} s (median) from the end of one to the "
+               "sending of the next within an experiment.")
+    return "\n".join(out)
+
+
 def bench_record(data: Json) -> str:
     """The loop with a recorder beside the same loop without one, and the recorder's own time."""
     without = get(data, "s_per_experiment_without_recording")
@@ -252,7 +283,7 @@ def bench_driver(data: Json) -> str:
 
 BENCH_RENDER = {"core": bench_core, "perception": bench_perception, "sim": bench_sim,
                 "arm": bench_arm, "loop": bench_loop, "record": bench_record,
-                "driver": bench_driver}
+                "driver": bench_driver, "loop_hardware": bench_loop_hardware}
 
 
 def render_benchmarks(results: Mapping) -> str:
@@ -277,7 +308,7 @@ BENCHMARKS_INTRO = """\
 
 What each benchmark measures, and the figures it gave. `make bench` runs every bench;
 `python bench/run.py NAME ...` runs some of them (core, perception, sim, arm, loop, record,
-driver).
+driver, loop_hardware).
 Each writes `bench/results/NAME.json`, which records the machine it ran on (`machine.cpu_model`,
 `machine.cpus`). The figures below come from the committed copies of those files in
 `docs/results/bench/` (`python -m katana_paper.docs_report collect NAME` copies one there and
@@ -345,4 +376,13 @@ pseudo-terminal, framing and CRC included, beside the emulator's own handling of
 configured poll rate; seconds from SIGINT or SIGTERM to the end of the driver and camera
 processes; and one trajectory goal under each fault of the emulator (lost, corrupt, split and
 late replies, a silent or frozen controller, a dropped TCP link, a restarted emulator)."""),
+    "loop_hardware": ("the whole loop against the emulator in real time", """\
+`bench/bench_loop_hardware.py`. `katana-run --backend hardware` as a user runs it, against
+the Katana emulator in real time (time scale 1; its gripper stalls where a 4 cm block would
+hold the fingers) and the substitute camera, for at least 10 experiments. Seconds per
+experiment is the median wall time between consecutive logged experiments; its floor is the
+arm's motion in them (the durations of the spline segments the emulator accepted). That motion
+stands beside the least time the arm's speed and acceleration limits allow on the same paths
+(`katana_manipulation.core.time_optimal` through the knots the driver sent, each rest-to-rest
+move on its own)."""),
 }

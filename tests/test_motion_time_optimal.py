@@ -1,0 +1,143 @@
+"""The least motion time on a joint-space path under per-joint speed and acceleration limits
+(katana_manipulation.core.time_optimal), against closed forms and bounds computed apart from it,
+and the pick-and-place planner's timing within 1.5 times that least time (ROS-free)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from katana_description import models as m
+from katana_manipulation.core import pick_place as pp
+from katana_manipulation.core.reach import pick_reach, place_reach
+from katana_manipulation.core.time_optimal import minimum_time, time_optimal
+
+#: the arm contract's limits, from the vendor numbers: rad/s, and KNI's 2 encoders per 10 ms
+#: tick squared over the encoders per radian of docs/KATANA.md
+SPEED = np.array([m.JOINT_MAX_SPEED[j] for j in m.ARM_JOINTS])
+ACCEL = 2.0 / (np.array([51200, 94976, 47488, 51200, 51200]) / (2.0 * math.pi)) / 0.01**2
+PLANNER = pp.PickPlacePlanner()
+
+
+def _trapezoid(d: float, v: float, a: float) -> float:
+    """Rest to rest over distance d: accelerate, cruise at v if it is reached, brake."""
+    return d / v + v / a if d >= v * v / a else 2.0 * math.sqrt(d / a)
+
+
+def _line_time(d: np.ndarray, v: np.ndarray, a: np.ndarray) -> float:
+    """A straight joint-space move: the path speed and acceleration its slowest joints allow."""
+    length = float(np.linalg.norm(d))
+    moving = np.abs(d) > 0
+    return _trapezoid(length, float(np.min(v[moving] * length / np.abs(d[moving]))),
+                      float(np.min(a[moving] * length / np.abs(d[moving]))))
+
+
+_angle = st.floats(-3.0, 3.0).map(lambda x: round(x, 3))  # milliradians: no subnormal moves
+_move = st.lists(_angle, min_size=5, max_size=5).map(np.array).filter(
+    lambda d: np.linalg.norm(d) > 1e-3)
+_limits = st.tuples(st.lists(st.floats(0.2, 3.0), min_size=5, max_size=5),
+                    st.lists(st.floats(0.2, 3.0), min_size=5, max_size=5))
+
+
+@settings(max_examples=60, deadline=None)
+@given(d=_move, limits=_limits, pieces=st.integers(1, 4))
+def test_a_straight_move_takes_the_trapezoid_time_in_any_number_of_pieces(d, limits, pieces):
+    v, a = (np.array(x) for x in limits)
+    q0 = np.zeros(5)
+    points = [q0 + d * k / pieces for k in range(pieces + 1)]
+    expected = _line_time(d, v, a)
+    assert minimum_time(points, v, a, grid_per_segment=200) == \
+        pytest.approx(expected, rel=5e-3)
+
+
+@settings(max_examples=30, deadline=None)
+@given(d=_move, limits=_limits)
+def test_out_and_back_stops_at_the_turn(d, limits):
+    """Every joint turns back at the far point, so it must stop there: two trapezoids."""
+    v, a = (np.array(x) for x in limits)
+    q0 = np.zeros(5)
+    got = minimum_time([q0, d, q0], v, a, grid_per_segment=200)
+    assert abs(got / (2.0 * _line_time(d, v, a)) - 1.0) < 0.02
+
+
+def _per_joint_bound(points: np.ndarray, v: np.ndarray, a: np.ndarray) -> float:
+    """A lower bound apart from the path: each joint must stop wherever it turns back, and no
+    run between turns is quicker than its trapezoid."""
+    best = 0.0
+    for j in range(points.shape[1]):
+        x = points[:, j]
+        dx = np.diff(x)
+        dx = dx[np.abs(dx) > 0]
+        runs, total = [], 0.0
+        for k, step in enumerate(dx):
+            if k and np.sign(step) != np.sign(dx[k - 1]):
+                runs.append(total)
+                total = 0.0
+            total += abs(step)
+        runs.append(total)
+        best = max(best, sum(_trapezoid(r, v[j], a[j]) for r in runs if r > 0))
+    return best
+
+
+@settings(max_examples=40, deadline=None)
+@given(points=st.lists(st.lists(_angle, min_size=5, max_size=5), min_size=2,
+                       max_size=6).map(np.array).filter(
+                           lambda p: np.all(np.linalg.norm(np.diff(p, axis=0), axis=1) > 1e-2)))
+def test_the_optimal_motion_keeps_the_limits_and_no_joint_could_be_quicker(points):
+    """Sampled every controller tick (constant path acceleration between grid points), the
+    motion keeps every limit, give or take the grid; and it takes no less than each joint alone
+    would need."""
+    prof = time_optimal(points, SPEED, ACCEL, grid_per_segment=200)
+    assert np.allclose(prof.path(prof.s[[0, -1]]), points[[0, -1]])
+    ts = np.arange(0.0, prof.duration, 0.01)
+    i = np.clip(np.searchsorted(prof.t, ts, side="right") - 1, 0, len(prof.s) - 2)
+    u = (prof.sdot[i + 1] ** 2 - prof.sdot[i] ** 2) / (2.0 * (prof.s[i + 1] - prof.s[i]))
+    tau = ts - prof.t[i]
+    q = prof.path(np.minimum(prof.s[i] + prof.sdot[i] * tau + 0.5 * u * tau**2, prof.s[-1]))
+    assert np.all(np.abs(np.diff(q, axis=0)) / 0.01 <= SPEED * 1.01)
+    assert np.all(np.abs(np.diff(q, 2, axis=0)) / 0.01**2 <= ACCEL * 1.05)
+    assert prof.duration >= _per_joint_bound(points, SPEED, ACCEL) * 0.995
+
+
+def _motion(segments) -> tuple[float, float]:
+    """(planned, least) seconds of arm motion of a plan, the least on each move's own path."""
+    planned = least = 0.0
+    for seg in segments:
+        if seg.kind == "arm":
+            planned += seg.times[-1]
+            least += minimum_time([seg.start, *seg.waypoints], SPEED, ACCEL)
+    return planned, least
+
+
+def _at(band, frac: float, angle: float, z: float) -> tuple[float, float, float]:
+    r = band.min_m + frac * (band.max_m - band.min_m)
+    return (r * math.cos(angle), r * math.sin(angle), z)
+
+
+@settings(max_examples=30, deadline=None)
+@given(pick_level=st.integers(1, 3), place_height=st.integers(0, 3),
+       pick=st.tuples(st.floats(0.02, 0.98), st.floats(-1.4, 1.4), st.floats(-1.5, 1.5)),
+       place=st.tuples(st.floats(0.02, 0.98), st.floats(-1.4, 1.4), st.floats(-1.5, 1.5)))
+def test_a_pick_and_place_moves_within_one_and_a_half_times_the_least_time(
+        pick_level, place_height, pick, place):
+    h = m.BLOCK_SIZE[2]
+    pick_band, place_band = pick_reach(pick_level, h), place_reach(place_height, h)
+    if pick_band.empty or place_band.empty:
+        return
+    req = pp.PickPlaceRequest(_at(pick_band, pick[0], pick[1], (pick_level - 0.5) * h), pick[2],
+                              m.BLOCK_SIZE,
+                              _at(place_band, place[0], place[1], (place_height + 0.5) * h),
+                              place[2])
+    try:
+        segments = PLANNER.plan(req, m.PARK_POSE)
+    except pp.PlanError:
+        return
+    planned, least = _motion(segments)
+    assert least > 0.0
+    assert planned <= 1.5 * least, (planned, least)
+    again = pp.PickPlacePlanner().plan(req, m.PARK_POSE)  # deterministic
+    assert [(s.times, s.points, s.velocities) for s in again] == \
+        [(s.times, s.points, s.velocities) for s in segments]
