@@ -567,3 +567,21 @@ def test_a_known_table_placement_beside_a_stack_of_one_changes_the_setting(tmp_p
     [record] = loop.log.records
     assert arm.resets == 1 and record.dropped_before == {"no_route_to_unknown": 1}
     assert (record.mode, record.state, record.action) == ("plan", 1, 6)
+
+
+def test_a_known_table_placement_with_too_few_blocks_for_the_way_up_changes_the_setting(
+        tmp_path) -> None:
+    """Only the table is offered and the arm can move one block (a two-stack's top; the others
+    lie on their sides): taking it down makes a base with nothing to build it up to height 2.
+    The loop changes the setting instead of making the placement."""
+
+    class OneBlock(SettingUntilReset):
+        def movable_blocks(self) -> int:
+            return 3 if self.resets else 1
+
+    arm = OneBlock([(0, 0)], [(0, 0), (1, 0), (1, 5)], stays=lambda s, a: s == 0 or a == 5)
+    loop = _known_up_to_height_one(arm, tmp_path)
+    assert loop.run().startswith("done")
+    [record] = loop.log.records
+    assert arm.resets == 1 and record.dropped_before == {"too_few_blocks": 1}
+    assert (record.mode, record.state, record.action) == ("plan", 1, 6)

@@ -173,16 +173,18 @@ class PlanOutcomes:
 
 
 def blocks_short(height: int, target: int, movable: int) -> bool:
-    """Whether a known placement on a stack of `height` (>= 1) that builds towards an unknown
-    pair at `target` leaves too few blocks to get there. After it the stack's old top is
-    covered and the moved block is the new top, so `movable - 2` blocks remain to place:
-    `target - height - 1` more known placements and the query itself, each with another block.
-    On the sim a fall often leaves a block on its side (never moved again): the loop built a
-    two-stack, took its top down and built it again, with nothing left to put on it. A table
-    placement (height 0) is never short: it frees a block from a stack for a new base."""
-    if height < 1 or target <= height:
+    """Whether a known placement on `height` that builds towards an unknown pair at `target`
+    leaves too few blocks to get there, `movable` being the blocks the arm could move now
+    (the one this placement moves among them). On a stack (height >= 1) its old top is covered
+    and the moved block is the new top, so `movable - 2` blocks remain for the `target - height`
+    placements still needed (the known ones and the query), one block each. On the table the
+    moved block is the new base and the stack it leaves may uncover one more block, so at most
+    `movable` remain for `target` placements. On the sim a fall often leaves a block on its side
+    (never moved again): the loop took a two-stack's top down and built it again with nothing
+    left to put on it."""
+    if target <= height:
         return False
-    return movable - 2 < target - height
+    return movable - (2 if height else 0) < target - height
 
 
 # -- from the log ---------------------------------------------------------------------------
