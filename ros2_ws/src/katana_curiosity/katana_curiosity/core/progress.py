@@ -87,7 +87,8 @@ class PlanOutcomes:
     A scene is what the loop tells settings apart by (on the robot: the heights offered and the
     heights of the stacks), with every pair it was seen to offer. Every placement adds an edge from
     the scene it was made in to the scene observed after it. The scenes since the last
-    experiment on an unknown pair (or the last reset) form the chain. A plan tried before leads
+    experiment that taught the learner (on an unknown pair, or known and mispredicted: `made`
+    with known=False) or the last reset form the chain. A plan tried before leads
     nowhere when no scene reachable over the recorded edges in at most `depth` placements,
     without entering a scene of the chain, offers a pair that is unknown now: it changed
     nothing, closed a cycle (on the sim, building a two-stack the arm cannot use and taking it

@@ -15,10 +15,10 @@ Policy (the paper's robot had a person for this; here it is explicit):
   followed anyway (a setting that no reset improves must not stop the run).
 - A known plan made before in the same scene is made again only while a scene it led to, or
   one reachable from there by placements made before (as many as the deepest plan, never back
-  into the scenes since the last experiment on an unknown pair), offers a pair unknown now
+  into the scenes since the last experiment that taught the learner), offers a pair unknown now
   (`progress.PlanOutcomes`: not if it changed nothing, closed a cycle or ended in scenes of
   known pairs), and no known plan once as many known plans as the deepest plan were made
-  since the last experiment on an unknown pair (`detour_too_long`); nor is a table placement
+  since the last experiment that taught the learner (`detour_too_long`); nor is a table placement
   that could only move a loose block; nor a known placement on a stack that would leave too
   few movable blocks to reach the next unknown height (`progress.blocks_short`:
   `too_few_blocks`), nor a known table placement in a setting that already offers a stack of
