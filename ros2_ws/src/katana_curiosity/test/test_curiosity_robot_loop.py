@@ -585,3 +585,20 @@ def test_a_known_table_placement_with_too_few_blocks_for_the_way_up_changes_the_
     [record] = loop.log.records
     assert arm.resets == 1 and record.dropped_before == {"too_few_blocks": 1}
     assert (record.mode, record.state, record.action) == ("plan", 1, 6)
+
+
+def test_the_same_offer_and_stacks_with_more_movable_blocks_is_another_setting(tmp_path) -> None:
+    """Where a plan leads depends on the blocks the arm can move (one on its side never is):
+    on the sim, a three-stack built beside a fallen block offered nothing to query at height
+    3, and the same plan after a reset, with every block upright, was refused for it. A scene
+    with another count of movable blocks is another scene."""
+
+    class MoreMovable(CountingPlacements):
+        def movable_blocks(self) -> int:
+            return 2 + self.made
+
+    arm = MoreMovable()
+    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=3)
+    assert loop.run().startswith("done")
+    assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0)] * 3
+    assert arm.resets == 0

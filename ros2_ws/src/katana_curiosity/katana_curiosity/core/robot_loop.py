@@ -308,11 +308,15 @@ class RobotLoop:
     def _on_setting(self, setting) -> None:
         self._offer = offer_of(setting)
         stacks = getattr(self.environment, "stack_heights", lambda: ())()
-        # told apart by the heights offered and the stacks, not by every action offered: the
-        # actions offered on a stack vary with where exactly its top block came to rest, and a
-        # cycle through scenes that differ only in that would go unnoticed
-        self._scene = (frozenset(h for h, _ in self._offer), tuple(stacks))
         self._movable = getattr(self.environment, "movable_blocks", lambda: None)()
+        # told apart by the heights offered, the stacks and how many blocks the arm could move
+        # (a block on its side is a stack of one that is never moved: where a plan leads
+        # depends on it), not by every action offered: the actions offered on a stack vary
+        # with where exactly its top block came to rest, and a cycle through scenes that
+        # differ only in that would go unnoticed
+        self._scene = (frozenset(h for h, _ in self._offer), tuple(stacks))
+        if self._movable is not None:
+            self._scene += (self._movable,)
         self._unknown_offered = unknown_offered(self.explorer.bank, self._offer)
         if self.outcomes.observed(self._scene, self._offer):
             self.logger.info("the last placement left the setting as it was")
