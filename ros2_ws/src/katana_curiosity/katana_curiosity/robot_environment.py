@@ -25,7 +25,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
-from .core.block_choice import BlockView, PickReach, choose_block_to_move
+from .core.block_choice import BlockView, PickReach, choose_block_to_move, movable_count
 from .core.environment import Outcome, Setting
 from .core.explorer import Choice
 from .core.robot_loop import (
@@ -286,6 +286,13 @@ class RobotEnvironment:
         block = self._choose_block(self.observed_blocks, self.instances[choice.index], set())
         return block is not None and block.level == 1
 
+    def movable_blocks(self) -> int:
+        """How many blocks of the last observed setting the arm could move (upright, on top,
+        within reach): what a stack can still be built with."""
+        if self.observed_blocks is None:
+            return 0
+        return movable_count(self._views(self.observed_blocks, set()), self._can_pick)
+
     def stack_heights(self) -> tuple[int, ...]:
         """The heights of the stacks in the last observed setting (a loose block is a stack of
         one), from the same memory/blocks the offer was made from."""
@@ -398,16 +405,20 @@ class RobotEnvironment:
         del self.unpickable[block.id]  # it moved: worth trying again
         return False
 
+    def _views(self, blocks: BlockArray, excluded: set[str]) -> list[BlockView]:
+        return [BlockView(b.id, b.pose.position.x, b.pose.position.y, b.on_top, b.level,
+                          b.resting_pose_known
+                          and stands_upright((b.size.x, b.size.y, b.size.z)))
+                for b in blocks.blocks if b.id not in excluded and not self._still_unpickable(b)]
+
+    def _can_pick(self, view: BlockView) -> bool:
+        return self.config.reach.can_pick(view.x, view.y, view.level)
+
     def _choose_block(self, blocks: BlockArray, instance: FoveaInstance, excluded: set[str]):
-        views = [BlockView(b.id, b.pose.position.x, b.pose.position.y, b.on_top, b.level,
-                           b.resting_pose_known
-                           and stands_upright((b.size.x, b.size.y, b.size.z)))
-                 for b in blocks.blocks if b.id not in excluded and not self._still_unpickable(b)]
-        reach = self.config.reach
         choice = choose_block_to_move(
-            views, (instance.placement.position.x, instance.placement.position.y),
-            list(instance.support_ids), lambda v: reach.can_pick(v.x, v.y, v.level),
-            from_stacks_first=instance.state == 0)
+            self._views(blocks, excluded),
+            (instance.placement.position.x, instance.placement.position.y),
+            list(instance.support_ids), self._can_pick, from_stacks_first=instance.state == 0)
         if choice is None:
             return None
         return next(b for b in blocks.blocks if b.id == choice.id)

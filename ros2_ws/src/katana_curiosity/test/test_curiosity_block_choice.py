@@ -5,7 +5,12 @@ import math
 
 from hypothesis import given
 from hypothesis import strategies as st
-from katana_curiosity.core.block_choice import BlockView, PickReach, choose_block_to_move
+from katana_curiosity.core.block_choice import (
+    BlockView,
+    PickReach,
+    choose_block_to_move,
+    movable_count,
+)
 
 REACH = PickReach(((0.12, 0.32), (0.13, 0.30), (0.15, 0.27)))
 
@@ -69,3 +74,15 @@ def test_the_livelock_scene_moves_the_three_stacks_top_not_the_loose_block():
     table_spot = (0.15, 0.0)
     assert choose_block_to_move(scene, table_spot, []) == loose  # furthest: the paper's rule
     assert choose_block_to_move(scene, table_spot, [], from_stacks_first=True) == top_of_three
+
+
+@given(blocks=st.lists(views, max_size=6, unique_by=lambda b: b.id),
+       px=st.floats(0.1, 0.3), py=st.floats(-0.15, 0.15))
+def test_the_movable_blocks_are_those_the_choice_would_move_one_after_the_other(blocks, px, py):
+    def reachable(b):
+        return REACH.can_pick(b.x, b.y, b.level)
+
+    moved: list[str] = []
+    while (got := choose_block_to_move(blocks, (px, py), moved, reachable)) is not None:
+        moved.append(got.id)
+    assert movable_count(blocks, reachable) == len(moved)

@@ -9,6 +9,7 @@ from katana_curiosity.core.predictors import GAMMA, QueryRule
 from katana_curiosity.core.progress import (
     PlanOutcomes,
     Realisability,
+    blocks_short,
     last_query,
     longest_identical_plan_streak,
     offer_of,
@@ -25,8 +26,8 @@ UNKNOWN = {"margin_before": 0.0, "confidence_before": 0.5}
 
 
 def record(index, mode="plan", state=0, action=2, available=(0, 3), resets_before=0,
-           known=True):
-    return ExperimentRecord(index=index, state=state, action=action, label=1, mode=mode,
+           known=True, label=1):
+    return ExperimentRecord(index=index, state=state, action=action, label=label, mode=mode,
                             available=list(available), resets_before=resets_before,
                             **(KNOWN if known else UNKNOWN))
 
@@ -222,22 +223,42 @@ def test_plans_that_lead_to_a_query_are_not_wasted_and_a_reset_ends_a_chain():
     assert longest_identical_plan_streak(records) == 2
 
 
+def test_a_known_placement_the_learner_mispredicted_taught_it_and_ends_a_chain():
+    """A placement known to stay that fell proved the learner wrong: its weights move on the
+    mistake, so it and the known placements leading to it are not wasted; the known placement
+    after it, ended by a reset, is."""
+    records = [
+        record(0, state=1), record(1, state=2, label=-1),  # known stable, fell
+        record(2, state=0),
+        record(3, mode="query", state=1, known=False, resets_before=1),
+    ]
+    assert wasted_experiments(records, RULE) == [2]
+
+
+def _taught(r):
+    """Independent reading: the pair was unknown (the test's UNKNOWN confidence) or the label
+    differs from the sign of the margin the learner had."""
+    unknown = r.confidence_before != KNOWN["confidence_before"]
+    return unknown or np.sign(r.margin_before) != r.label
+
+
 @given(st.lists(st.tuples(st.sampled_from(["query", "plan", "random"]), st.integers(0, 2),
-                          st.integers(1, 3), st.booleans(), st.integers(0, 1)), max_size=40))
+                          st.integers(1, 3), st.booleans(), st.integers(0, 1),
+                          st.sampled_from([1, 1, 1, -1])), max_size=40))
 def test_the_log_figures_against_a_brute_force_reading(rows):
-    records = [record(i, mode=m, state=s, action=a, known=k, resets_before=r)
-               for i, (m, s, a, k, r) in enumerate(rows)]
-    # brute force: an experiment is useful if it was unknown, or a later unknown one follows it
-    # with no reset on the way; the streak is the longest run of equal planned keys
+    records = [record(i, mode=m, state=s, action=a, known=k, resets_before=r, label=y)
+               for i, (m, s, a, k, r, y) in enumerate(rows)]
+    # brute force: an experiment is useful if it taught the learner, or a later one that did
+    # follows it with no reset on the way; the streak is the longest run of equal planned keys
     wasted = []
     for i, r in enumerate(records):
-        if not r.confidence_before == KNOWN["confidence_before"]:
+        if _taught(r):
             continue
         useful = False
         for later in records[i + 1:]:
             if later.resets_before:
                 break
-            if later.confidence_before != KNOWN["confidence_before"]:
+            if _taught(later):
                 useful = True
                 break
         if not useful:
@@ -291,3 +312,25 @@ def test_planning_on_a_new_feasible_table_equals_planning_on_it_from_the_start()
     assert before[1].max() > 0.5 and after.max() == 0.0, "no phantom reward left at (2, 5)"
     planner.set_feasible(feasible)  # offered again: the reward comes back
     np.testing.assert_allclose(planner.solve(), before, atol=1e-9)
+
+
+@given(st.integers(0, 5), st.integers(1, 7), st.integers(0, 8))
+def test_blocks_short_against_building_the_stack_block_by_block(height, target, movable):
+    """Build it: a pile of the movable blocks; on a stack, its old top is covered and the moved
+    block tops it; on the table, the moved block is the base and the stack it came from
+    uncovers one more block (at best); then every placement on the way to the query at
+    `target`, the query included, takes another block off the pile."""
+    pile = movable
+    if height:
+        pile -= 2  # the stack's old top, covered; the moved block, now its top
+    else:
+        pile -= 1  # the moved block, now the base ...
+        pile += 1  # ... and the block its old stack uncovers
+    placements = list(range(height + 1, target + 1))  # on heights height+1..target
+    enough = True
+    for _ in placements:
+        if pile <= 0:
+            enough = False
+            break
+        pile -= 1
+    assert blocks_short(height, target, movable) == (not enough)

@@ -2,6 +2,7 @@
 
 import random
 import threading
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -242,16 +243,17 @@ class SettingUntilReset:
         return "scattered"
 
 
-def _known_up_to_height_one(arm, tmp_path, setting_changes=3):
-    """A loop whose learner knows heights 0 and 1 (on 1, action 6 stays, action 1 falls) and
-    nothing of height 2: a planned placement is worth making only if it can grow a two-stack."""
+def _known_up_to_height_one(arm, tmp_path, setting_changes=3, stays_on_one=(5,)):
+    """A loop whose learner knows heights 0 and 1 (on 1, the actions `stays_on_one` stay, action
+    6 by default, the others fall) and nothing of height 2: a planned placement is worth making
+    only if it can grow a two-stack."""
     loop, _ = make_loop(tmp_path, arm, max_experiments=1)
     loop.policy = LoopPolicy(max_experiments=1, backoff_s=0.0, setting_changes=setting_changes)
     bank = loop.explorer.bank
     for _ in range(40):
         bank.update(0, 0, 1)
         for a in range(6):
-            bank.update(1, a, 1 if a == 5 else -1)
+            bank.update(1, a, 1 if a in stays_on_one else -1)
     feasible = feasible_actions(3, 6, 1)
     assert not (bank.unknown[:2] & feasible[:2]).any() and bank.unknown[2].all()
     return loop
@@ -492,17 +494,111 @@ def test_known_plans_in_scenes_that_never_repeat_end_at_the_depth_of_the_deepest
 
 def test_a_refused_plan_gives_way_to_the_best_plan_worth_making(tmp_path) -> None:
     """The planner's first choice led back into its chain before; the setting also offers
-    another placement on height 1 (action 6, known to stay): that one is made, no reset."""
-    arm = SettingUntilReset([(0, 0), (1, 0), (1, 5)], [], stays=lambda s, a: s == 0 or a == 5)
-    loop = _known_up_to_height_one(arm, tmp_path)
+    another placement on height 1 known to stay (action 4): that one is made, no reset."""
+    arm = SettingUntilReset([(0, 0), (1, 0), (1, 3), (1, 5)], [],
+                            stays=lambda s, a: s == 0 or a in (3, 5))
+    loop = _known_up_to_height_one(arm, tmp_path, stays_on_one=(3, 5))
     strategy = loop.explorer.strategy
     strategy.planner.solve()
     first = strategy.planned(arm.observe())
-    scene, offer = (frozenset({0, 1}), ()), frozenset({(0, 0), (1, 0), (1, 5)})
+    scene, offer = (frozenset({0, 1}), ()), frozenset({(0, 0), (1, 0), (1, 3), (1, 5)})
     loop.outcomes.observed(scene, offer)
     loop.outcomes.made(scene, first.state, first.action)
     loop.outcomes.observed(scene, offer)  # it changed nothing
     assert loop.run().startswith("done")
     [record] = loop.log.records
     assert arm.resets == 0 and record.mode == "plan" and record.dropped_before == {}
-    assert (record.state, record.action - 1) != (first.state, first.action)
+    assert record.state == 1 and (record.state, record.action - 1) != (first.state, first.action)
+
+
+def test_a_known_build_that_leaves_no_block_to_put_on_the_stack_changes_the_setting(
+        tmp_path) -> None:
+    """Height 2 is unknown; the setting offers action 6 on a loose block (known to stay), but
+    the arm can move only two blocks (the others fell onto their sides): the two-stack it would
+    build has nothing left to be placed on it. The loop changes the setting instead; in the new
+    one three blocks can be moved and the same placement is made."""
+
+    class FewBlocks(SettingUntilReset):
+        def movable_blocks(self) -> int:
+            return 3 if self.resets else 2
+
+    arm = FewBlocks([(0, 0), (1, 0), (1, 5)], [(0, 0), (1, 0), (1, 5)],
+                    stays=lambda s, a: s == 0 or a == 5, loose_blocks_only=True)
+    loop = _known_up_to_height_one(arm, tmp_path)
+    assert loop.run().startswith("done")
+    [record] = loop.log.records
+    assert arm.resets == 1 and record.dropped_before == {"too_few_blocks": 1}
+    assert (record.mode, record.state, record.action) == ("plan", 1, 6)
+
+
+def test_a_known_placement_that_proved_the_learner_wrong_starts_a_new_chain(tmp_path) -> None:
+    """Four known plans in scenes that never repeat are the deepest detour; when the fourth
+    falls where the learner predicted it stays, the learner was taught and the chain starts
+    again instead."""
+
+    class FourthFalls(CountingPlacements):
+        def execute(self, state, action, index=None):
+            outcome = super().execute(state, action, index)
+            return replace(outcome, label=-1) if self.made == 4 else outcome
+
+        def stack_heights(self) -> tuple[int, ...]:
+            return (1,) * self.made + (3,)
+
+    arm = FourthFalls()
+    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=4)
+    assert loop.run().startswith("done")
+    records = loop.log.records
+    assert [(r.mode, r.state) for r in records] == [("plan", 0)] * 4
+    assert records[-1].label == -1 and records[-1].margin_before > 0
+    assert not loop.outcomes.detour_too_long
+
+
+def test_a_known_table_placement_beside_a_stack_of_one_changes_the_setting(tmp_path) -> None:
+    """The setting offers a loose block to build on, but only with action 1, known to fall;
+    the other plan, a table placement, would take a stack's top down for a base that is
+    already there (`table_beside_a_base`). The loop changes the setting instead of making it
+    and builds on the new one's base."""
+    arm = SettingUntilReset([(0, 0), (1, 0)], [(0, 0), (1, 0), (1, 5)],
+                            stays=lambda s, a: s == 0 or a == 5)
+    loop = _known_up_to_height_one(arm, tmp_path)
+    loop.explorer.strategy.planner.solve()
+    assert leads_towards_unknown(loop.explorer.strategy, Choice(0, 0, PLAN, 0))
+    assert loop.run().startswith("done")
+    [record] = loop.log.records
+    assert arm.resets == 1 and record.dropped_before == {"no_route_to_unknown": 1}
+    assert (record.mode, record.state, record.action) == ("plan", 1, 6)
+
+
+def test_a_known_table_placement_with_too_few_blocks_for_the_way_up_changes_the_setting(
+        tmp_path) -> None:
+    """Only the table is offered and the arm can move one block (a two-stack's top; the others
+    lie on their sides): taking it down makes a base with nothing to build it up to height 2.
+    The loop changes the setting instead of making the placement."""
+
+    class OneBlock(SettingUntilReset):
+        def movable_blocks(self) -> int:
+            return 3 if self.resets else 1
+
+    arm = OneBlock([(0, 0)], [(0, 0), (1, 0), (1, 5)], stays=lambda s, a: s == 0 or a == 5)
+    loop = _known_up_to_height_one(arm, tmp_path)
+    assert loop.run().startswith("done")
+    [record] = loop.log.records
+    assert arm.resets == 1 and record.dropped_before == {"too_few_blocks": 1}
+    assert (record.mode, record.state, record.action) == ("plan", 1, 6)
+
+
+def test_the_same_offer_and_stacks_with_more_movable_blocks_is_another_setting(tmp_path) -> None:
+    """Where a plan leads depends on the blocks the arm can move (one on its side never is):
+    on the sim, a three-stack built beside a fallen block offered nothing to query at height
+    3, and the same plan after a reset, with every block upright, was refused for it. A scene
+    with another count of movable blocks is another scene."""
+
+    class MoreMovable(CountingPlacements):
+        def movable_blocks(self) -> int:
+            return 2 + self.made
+
+    arm = MoreMovable()
+    loop = _known_on_the_table_and_at_three(arm, tmp_path, max_experiments=3)
+    assert loop.run().startswith("done")
+    assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0)] * 3
+    assert arm.resets == 0

@@ -77,5 +77,11 @@ def choose_block_to_move(
                                           math.hypot(b.x - px, b.y - py), _neg(b.id)))
 
 
+def movable_count(blocks: Iterable[BlockView], reachable=lambda block: True) -> int:
+    """How many blocks the arm could move now: upright top blocks within reach (the same test
+    as choose_block_to_move's, with no target stack)."""
+    return sum(1 for b in blocks if b.on_top and b.upright and reachable(b))
+
+
 def _neg(text: str) -> tuple[int, ...]:
     return tuple(-ord(c) for c in text)

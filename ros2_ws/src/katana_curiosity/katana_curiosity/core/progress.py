@@ -7,8 +7,8 @@ setting instead. `unknown_realisable` says when no pair the arm can
 ever realise is unknown: the paper's agent "knows when to stop its planning efforts".
 
 From the log, for summary.json: the experiments that were wasted (known before they were made,
-and not on a way to an unknown pair), the longest streak of identical planned placements, and
-the last query.
+predicted right, and not on a way to an experiment that taught the learner), the longest streak
+of identical planned placements, and the last query.
 """
 
 from __future__ import annotations
@@ -87,7 +87,8 @@ class PlanOutcomes:
     A scene is what the loop tells settings apart by (on the robot: the heights offered and the
     heights of the stacks), with every pair it was seen to offer. Every placement adds an edge from
     the scene it was made in to the scene observed after it. The scenes since the last
-    experiment on an unknown pair (or the last reset) form the chain. A plan tried before leads
+    experiment that taught the learner (on an unknown pair, or known and mispredicted: `made`
+    with known=False) or the last reset form the chain. A plan tried before leads
     nowhere when no scene reachable over the recorded edges in at most `depth` placements,
     without entering a scene of the chain, offers a pair that is unknown now: it changed
     nothing, closed a cycle (on the sim, building a two-stack the arm cannot use and taking it
@@ -172,6 +173,21 @@ class PlanOutcomes:
         return True
 
 
+def blocks_short(height: int, target: int, movable: int) -> bool:
+    """Whether a known placement on `height` that builds towards an unknown pair at `target`
+    leaves too few blocks to get there, `movable` being the blocks the arm could move now
+    (the one this placement moves among them). On a stack (height >= 1) its old top is covered
+    and the moved block is the new top, so `movable - 2` blocks remain for the `target - height`
+    placements still needed (the known ones and the query), one block each. On the table the
+    moved block is the new base and the stack it leaves may uncover one more block, so at most
+    `movable` remain for `target` placements. On the sim a fall often leaves a block on its side
+    (never moved again): the loop took a two-stack's top down and built it again with nothing
+    left to put on it."""
+    if target <= height:
+        return False
+    return movable - (2 if height else 0) < target - height
+
+
 # -- from the log ---------------------------------------------------------------------------
 
 
@@ -181,21 +197,33 @@ def known_before(record: ExperimentRecord, rule: QueryRule) -> bool:
     return not bool(rule.is_query(np.array(margin), np.array(chi)))
 
 
+def mispredicted(record: ExperimentRecord) -> bool:
+    """Whether the outcome contradicted the learner's prediction (the sign of its margin)."""
+    return record.label * record.margin_before <= 0
+
+
+def taught(record: ExperimentRecord, rule: QueryRule) -> bool:
+    """Whether the experiment taught the learner something: its pair was unknown, or the
+    learner thought it known and the outcome proved it wrong (the mistake moves the weights
+    and can make the pair unknown again, so it is no repetition of what was known)."""
+    return not known_before(record, rule) or mispredicted(record)
+
+
 def wasted_experiments(records: Sequence[ExperimentRecord], rule: QueryRule) -> list[int]:
-    """Indices of the experiments that were known before they were made and did not lead, with
-    no reset in between, to an experiment on an unknown pair. A plan that builds a stack
-    towards an unknown pair is not wasted; a run of known placements that ends in a reset, a
-    setting change or the end of the run is."""
+    """Indices of the experiments that were known before they were made, came out as predicted
+    and did not lead, with no reset in between, to an experiment that taught the learner
+    (`taught`). A plan that builds a stack towards an unknown pair is not wasted; a run of
+    known placements that ends in a reset, a setting change or the end of the run is."""
     wasted: list[int] = []
     chain: list[int] = []
     for record in records:
         if chain and record.resets_before:
             wasted.extend(chain)
             chain = []
-        if known_before(record, rule):
-            chain.append(record.index)
-        else:
+        if taught(record, rule):
             chain = []
+        else:
+            chain.append(record.index)
     return wasted + chain
 
 

@@ -15,11 +15,14 @@ Policy (the paper's robot had a person for this; here it is explicit):
   followed anyway (a setting that no reset improves must not stop the run).
 - A known plan made before in the same scene is made again only while a scene it led to, or
   one reachable from there by placements made before (as many as the deepest plan, never back
-  into the scenes since the last experiment on an unknown pair), offers a pair unknown now
+  into the scenes since the last experiment that taught the learner), offers a pair unknown now
   (`progress.PlanOutcomes`: not if it changed nothing, closed a cycle or ended in scenes of
   known pairs), and no known plan once as many known plans as the deepest plan were made
-  since the last experiment on an unknown pair (`detour_too_long`); nor is a table placement
-  that could only move a loose block; the
+  since the last experiment that taught the learner (`detour_too_long`); nor is a table placement
+  that could only move a loose block; nor a known placement on a stack that would leave too
+  few movable blocks to reach the next unknown height (`progress.blocks_short`:
+  `too_few_blocks`), nor a known table placement in a setting that already offers a stack of
+  one to build on (`table_beside_a_base`: it lowers a stack for a base that is there). The
   best other plan worth making is made instead, and only when there is none is the setting
   changed (within the same `setting_changes` bound).
 - A pair never offered in `unrealisable_after` logged settings offering its height is one the
@@ -49,7 +52,9 @@ from .progress import (
     Offer,
     PlanOutcomes,
     Realisability,
+    blocks_short,
     offer_of,
+    taught,
     unknown_offered,
     unknown_realisable,
 )
@@ -205,7 +210,7 @@ class RobotEnvironment(Environment, Protocol):
 
 #: why the loop changed the setting instead of making a planned placement (NoRouteToUnknown)
 SETTING_CHANGES = frozenset({"no_route_to_unknown", "plan_leads_nowhere", "detour_too_long",
-                             "table_to_table"})
+                             "table_to_table", "too_few_blocks", "table_beside_a_base"})
 
 #: drops that leave the setting as it was: trying it again can only fail again
 STILL_SETTING_REASONS = frozenset({"no_usable_instance"})
@@ -275,6 +280,7 @@ class RobotLoop:
         self.outcomes = PlanOutcomes(depth=explorer.bank.unknown.shape[0] - 1)
         self._offer: Offer = frozenset()
         self._scene: tuple = ()
+        self._movable: int | None = None  # blocks the arm could move in the observed setting
         self._unknown_offered = -1
         self._resets_since_experiment = 0
         self.all_known_at: int | None = None  # experiments made when nothing was left unknown
@@ -302,10 +308,15 @@ class RobotLoop:
     def _on_setting(self, setting) -> None:
         self._offer = offer_of(setting)
         stacks = getattr(self.environment, "stack_heights", lambda: ())()
-        # told apart by the heights offered and the stacks, not by every action offered: the
-        # actions offered on a stack vary with where exactly its top block came to rest, and a
-        # cycle through scenes that differ only in that would go unnoticed
+        self._movable = getattr(self.environment, "movable_blocks", lambda: None)()
+        # told apart by the heights offered, the stacks and how many blocks the arm could move
+        # (a block on its side is a stack of one that is never moved: where a plan leads
+        # depends on it), not by every action offered: the actions offered on a stack vary
+        # with where exactly its top block came to rest, and a cycle through scenes that
+        # differ only in that would go unnoticed
         self._scene = (frozenset(h for h, _ in self._offer), tuple(stacks))
+        if self._movable is not None:
+            self._scene += (self._movable,)
         self._unknown_offered = unknown_offered(self.explorer.bank, self._offer)
         if self.outcomes.observed(self._scene, self._offer):
             self.logger.info("the last placement left the setting as it was")
@@ -318,17 +329,22 @@ class RobotLoop:
             return None
         return unknown_realisable(self.explorer.bank, planner.feasible, planner.top)
 
-    def _place_planned(self, setting, choice: Choice) -> Choice:
-        """The environment's choice of instance, towards the lowest height above the choice
-        where a pair the arm can realise is still unknown (the plan's next goal); a known
-        placement that builds towards it is made square (`square_building`)."""
+    def _goal_above(self, height: int) -> int | None:
+        """The lowest height above `height` where a pair the arm can realise is still unknown
+        (the plan's next goal), or None."""
         unknown = self.unknown_realisable_pairs()
-        above = [] if unknown is None else [
-            h for h in range(choice.state + 1, len(unknown)) if unknown[h].any()]
-        target = above[0] if above else choice.state + 1
-        if above:
-            choice = square_building(self.explorer.bank, setting, choice)
-        return self.environment.place_planned(setting, choice, target)
+        if unknown is None:
+            return None
+        return next((h for h in range(height + 1, len(unknown)) if unknown[h].any()), None)
+
+    def _place_planned(self, setting, choice: Choice) -> Choice:
+        """The environment's choice of instance, towards the plan's next goal (`_goal_above`);
+        a known placement that builds towards it is made square (`square_building`)."""
+        goal = self._goal_above(choice.state)
+        if goal is None:
+            return self.environment.place_planned(setting, choice, choice.state + 1)
+        choice = square_building(self.explorer.bank, setting, choice)
+        return self.environment.place_planned(setting, choice, goal)
 
     def _worth_making(self, strategy: Strategy, choice: Choice) -> str | None:
         if not self.policy.setting_changes or self._setting_changes >= self.policy.setting_changes:
@@ -339,6 +355,12 @@ class RobotLoop:
                 return "detour_too_long"
             if self.outcomes.leads_nowhere(self._scene, choice.state, choice.action, unknown):
                 return "plan_leads_nowhere"
+            goal = self._goal_above(choice.state)
+            if (self._movable is not None and goal is not None
+                    and blocks_short(choice.state, goal, self._movable)):
+                return "too_few_blocks"
+            if choice.state == 0 and any(h == 1 for h, _ in self._offer):
+                return "table_beside_a_base"
         if getattr(self.environment, "moves_a_loose_block", lambda _: False)(choice):
             return "table_to_table"  # a new stack of one where one already lies: no change
         return None if leads_towards_unknown(strategy, choice) else "no_route_to_unknown"
@@ -416,9 +438,9 @@ class RobotLoop:
         if self.realisability is not None:
             self.realisability.note(self._offer)
             self._plan_on_realisable()
-        known = not self.explorer.bank.rule.is_query(np.array(step.margin_before),
-                                                     np.array(step.chi_before))
-        self.outcomes.made(self._scene, step.state, step.action, known)
+        # a known placement that proved the learner wrong ends the chain as a query does
+        self.outcomes.made(self._scene, step.state, step.action,
+                           known=not taught(record, self.explorer.bank.rule))
         self.environment.mark_scene_changed()
         self.on_experiment(record, step)
         # A scene that offers nothing but the table (a stack whose top is beyond reach and
