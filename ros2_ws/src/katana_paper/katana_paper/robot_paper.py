@@ -2,11 +2,11 @@
 
 ROS-free. `analyse_run` replays one run's experience log through a fresh learner and reads, after
 every experiment, the KL divergence per height from the measured truth (core.robot_truth), the
-direct and planned experience per height, and which experiments were wasted: made on a pair the
-query condition already called known, and leading nowhere (the block fell, or the stack it grew
-offers no pair still unknown). `summarise` folds the runs of each strategy into summary.json;
-the figure functions draw the paper's Figures 4/5 and 13 for the robot (katana_paper.
-contact_sheet draws Figures 10-12).
+direct and planned experience per height, and which experiments were wasted, as the run's own
+summary counts them (katana_curiosity.core.progress: known beforehand, came out as predicted,
+and no experiment that taught the learner followed before a reset). `summarise` folds the runs
+of each strategy into summary.json; the figure functions draw the paper's Figures 4/5 and 13
+for the robot (katana_paper.contact_sheet draws Figures 10-12).
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from katana_curiosity.core.predictors import (  # noqa: E402
     QueryRule,
     one_hot_with_bias,
 )
+from katana_curiosity.core.progress import wasted_positions  # noqa: E402
 
 from .claims.stats import MIN_SEEDS, mean_band  # noqa: E402
 from .robot_truth import TruthTable, kl_to_truth, wilson_interval  # noqa: E402
@@ -51,14 +52,10 @@ class RunAnalysis:
     labels: np.ndarray  # +1 / -1
     modes: list[str]
     known_before: np.ndarray  # bool: the query condition called the pair known beforehand
-    led_nowhere: np.ndarray  # bool: fell, or grew a stack with no unknown pair left
+    wasted: np.ndarray  # bool: core.progress's wasted experiment
     s_per_experiment: float | None
     final_margin: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))
     final_chi: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))
-
-    @property
-    def wasted(self) -> np.ndarray:
-        return self.known_before & self.led_nowhere
 
     @property
     def highest_stack(self) -> int:
@@ -90,22 +87,16 @@ def analyse_run(
     heights = min(truth.n_states, max_height + 1)
     kl = np.full((len(records), heights), np.nan)
     known = np.zeros(len(records), dtype=bool)
-    nowhere = np.zeros(len(records), dtype=bool)
-    table_only = np.zeros((max_height + 2, n_actions), dtype=bool)
-    table_only[0, 1:] = True  # never offered: on the table only action 1
+    taught = np.zeros(len(records), dtype=bool)
     for i, r in enumerate(records):
         s, a, label = int(r.state), int(r.action), int(r.label)
         known[i] = not bool(bank.unknown[s, a - 1])
+        taught[i] = not known[i] or label * bank.margin[s, a - 1] <= 0  # progress.taught
         bank.update(s, a - 1, float(label))
-        if label < 0:
-            nowhere[i] = True
-        else:
-            above = s + 1
-            offered_unknown = bank.unknown[above] & ~table_only[above] if above <= max_height \
-                else np.zeros(n_actions, dtype=bool)
-            nowhere[i] = not offered_unknown.any()
         for h, value in kl_to_truth(truth, bank.margin[:heights]).items():
             kl[i, h] = value
+    wasted = np.zeros(len(records), dtype=bool)
+    wasted[wasted_positions(taught, [int(getattr(r, "resets_before", 0)) for r in records])] = True
     times = [float(r.wall_time) for r in records if getattr(r, "wall_time", 0.0)]
     gaps = [b - a for a, b in zip(times, times[1:], strict=False) if b >= a]
     return RunAnalysis(
@@ -113,7 +104,7 @@ def analyse_run(
         states=np.array([int(r.state) for r in records], dtype=int),
         actions=np.array([int(r.action) for r in records], dtype=int),
         labels=np.array([int(r.label) for r in records], dtype=int),
-        modes=[str(r.mode) for r in records], known_before=known, led_nowhere=nowhere,
+        modes=[str(r.mode) for r in records], known_before=known, wasted=wasted,
         s_per_experiment=statistics.median(gaps) if gaps else None,
         final_margin=bank.margin.copy(), final_chi=bank.chi.copy(),
     )
@@ -125,12 +116,12 @@ def write_run_csv(analysis: RunAnalysis, path: Path) -> None:
     with open(path, "w", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
         w.writerow(["experiment", "mode", "state", "action", "label", "known_before",
-                    "led_nowhere", *(f"kl_h{h}" for h in range(heights)), "kl_overall"])
+                    "wasted", *(f"kl_h{h}" for h in range(heights)), "kl_overall"])
         for i in range(len(analysis.states)):
             row = analysis.kl[i]
             w.writerow([i, analysis.modes[i], int(analysis.states[i]), int(analysis.actions[i]),
                         int(analysis.labels[i]), int(analysis.known_before[i]),
-                        int(analysis.led_nowhere[i]),
+                        int(analysis.wasted[i]),
                         *("" if np.isnan(v) else f"{v:.6g}" for v in row),
                         f"{np.nanmean(row):.6g}" if np.isfinite(row).any() else ""])
 

@@ -26,6 +26,7 @@ class Rec:
     label: int
     mode: str = "query"
     wall_time: float = 0.0
+    resets_before: int = 0
 
 
 def _truth() -> TruthTable:
@@ -62,27 +63,30 @@ def test_the_final_kl_is_the_hand_computed_divergence_of_the_replayed_model():
     assert a.highest_stack == 0
 
 
-def test_an_experiment_is_wasted_when_known_beforehand_and_leading_nowhere():
+def test_an_experiment_is_wasted_when_known_and_as_predicted_with_nothing_taught_after():
     # The first experiment at a pair is never known; once the query condition calls (1, a1)
-    # known, further falls there are wasted. A stayed table placement leads to height 1,
-    # whose pairs are still unknown: never wasted.
+    # known, further falls come out as predicted and teach nothing: with no experiment that
+    # teaches after them (the run ends), they are wasted, as the run's summary counts them.
     records = [Rec(0, 1, 1)] + [Rec(1, 1, -1, "plan") for _ in range(30)]
     a = rp.analyse_run(records, _truth(), "q1", 0, theta=THETA_ROBOT, alpha=ALPHA)
     assert not a.known_before[0] and not a.wasted[0]
     assert not a.known_before[1]
-    assert a.led_nowhere[1:].all()  # every one fell
     first_known = int(np.argmax(a.known_before[1:])) + 1
     assert a.known_before[first_known:].all()  # once known, known after more of the same
     assert a.wasted.sum() == len(records) - first_known
+    assert a.wasted[first_known:].all()
     assert 1 < first_known < len(records)
 
 
-def test_a_stay_onto_a_height_with_nothing_unknown_leads_nowhere():
-    # With theta = 1 nothing is ever unknown (|margin| - chi > -1... every pair is "known"):
-    # a stayed placement from the table leads nowhere, a fall too.
-    a = rp.analyse_run([Rec(0, 1, 1), Rec(1, 6, -1)], _truth(), "random", 0, alpha=1e-3,
-                       theta=1.0)
-    assert a.known_before.all() and a.led_nowhere.all()
+@pytest.mark.parametrize("resets", [0, 1])
+def test_known_experiments_leading_to_one_that_teaches_are_not_wasted_unless_a_reset_parts_them(
+        resets):
+    falls = [Rec(0, 1, 1)] + [Rec(1, 1, -1, "plan") for _ in range(30)]
+    records = [*falls, Rec(2, 3, -1, resets_before=resets)]  # (2, a3): unknown, it teaches
+    a = rp.analyse_run(records, _truth(), "q1", 0, theta=THETA_ROBOT, alpha=ALPHA)
+    first_known = int(np.argmax(a.known_before[1:])) + 1
+    assert not a.known_before[-1] and not a.wasted[-1]
+    assert a.wasted.sum() == (len(falls) - first_known if resets else 0)
 
 
 def test_summary_has_the_issue_layout(tmp_path):

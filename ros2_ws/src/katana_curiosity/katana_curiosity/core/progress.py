@@ -214,16 +214,24 @@ def wasted_experiments(records: Sequence[ExperimentRecord], rule: QueryRule) -> 
     and did not lead, with no reset in between, to an experiment that taught the learner
     (`taught`). A plan that builds a stack towards an unknown pair is not wasted; a run of
     known placements that ends in a reset, a setting change or the end of the run is."""
+    return [records[i].index for i in wasted_positions(
+        [taught(r, rule) for r in records], [r.resets_before for r in records])]
+
+
+def wasted_positions(taught_flags: Sequence[bool], resets_before: Sequence[int]) -> list[int]:
+    """`wasted_experiments` on plain sequences (positions, in order): an experiment that did not
+    teach is wasted unless a later one teaches before any reset. Shared by the loop's summary
+    and the study's replay (katana_paper.robot_paper), so both count the same experiments."""
     wasted: list[int] = []
     chain: list[int] = []
-    for record in records:
-        if chain and record.resets_before:
+    for i, (taught_it, resets) in enumerate(zip(taught_flags, resets_before, strict=True)):
+        if chain and resets:
             wasted.extend(chain)
             chain = []
-        if taught(record, rule):
+        if taught_it:
             chain = []
         else:
-            chain.append(record.index)
+            chain.append(i)
     return wasted + chain
 
 
