@@ -78,7 +78,8 @@ PAPER_CLAIMS = "The paper's claims of section 3.2, checked against this run:"
 #: what the table of section 3.3's runs shows, and the verdicts after it
 ROBOT_TABLE = ("KL(measured truth || learned) per height at the end of the runs and overall (the "
                "mean over the measured heights), means of the seeds; an experiment is wasted "
-               "when its pair was known and it led nowhere:")
+               "when its pair was known, it came out as predicted and no experiment that "
+               "taught the learner followed it before a reset:")
 ROBOT_CLAIMS = "The paper's claims of section 3.3, against these runs:"
 STUDY_ABOUT = """\
 `make robot-paper` is too short to decide most of section 3.3's claims. `make robot-study`
