@@ -189,9 +189,10 @@ class RobotEnvironment(Environment, Protocol):
         """Block until the environment's picture of the scene includes the last experiment."""
         ...
 
-    def mark_scene_changed(self) -> None:
-        """Note that an experiment was just published or the world reset: the next
-        wait_until_current awaits a picture of the scene taken after it."""
+    def mark_scene_changed(self, experience: int | None = None) -> None:
+        """Note that experiment `experience` is about to be published, or the world changed
+        without one (None): the next wait_until_current awaits a picture of the scene taken
+        after it."""
         ...
 
     def blocks_out_of_reach(self) -> list[str]: ...
@@ -419,7 +420,7 @@ class RobotLoop:
         known = not self.explorer.bank.rule.is_query(np.array(step.margin_before),
                                                      np.array(step.chi_before))
         self.outcomes.made(self._scene, step.state, step.action, known)
-        self.environment.mark_scene_changed()
+        self.environment.mark_scene_changed(record.index)
         self.on_experiment(record, step)
         # A scene that offers nothing but the table (a stack whose top is beyond reach and
         # one loose block) cannot teach anything: have it reset, as a person would.
