@@ -566,3 +566,38 @@ def test_a_repeated_frame_gives_the_same_blocks_without_segmenting_it_again(ros)
     assert len(calls) == 2 and calls[-1][memory.blocks[0].id] == 2
     frame(4)
     assert len(calls) == 2
+
+
+def test_new_levels_after_an_experience_segment_the_latest_image_again_at_once(ros):
+    """The memory folds an experience in and publishes its new levels: perception answers with
+    detections of its latest image located on them, stamped with that image and numbered with
+    the experience, without waiting for the next image."""
+    node = ros.make(PerceptionNode)
+    calls = []
+    segment = node.segmenter.segment
+    node.segmenter.segment = lambda *a: calls.append(a[2].copy()) or segment(*a)
+    dets = ros.collect(BlockArray, "perception/detections")
+    memory_pub = ros.helper.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
+    assert ros.spin_until(lambda: ros.image_pub.get_subscription_count() > 0)
+    rgb, _ = ros.renderer.render(SCATTER, seed=1)
+    msg = rgb_to_image(rgb, Header(frame_id="camera_optical_frame"))
+    msg.header.stamp.sec = 5
+    for _ in range(50):
+        ros.camera_info()
+        ros.image_pub.publish(msg)
+        if ros.spin_until(lambda: dets, timeout_s=0.3):
+            break
+    assert dets[-1].experience == -1 and len(calls) == 1
+    memory = BlockArray(header=Header(frame_id="world"), blocks=list(dets[-1].blocks),
+                        experience=3)
+    memory.blocks[0].level = 2
+    n = len(dets)
+    memory_pub.publish(memory)
+    assert ros.spin_until(lambda: len(dets) > n)
+    assert dets[-1].experience == 3 and dets[-1].header.stamp.sec == 5
+    assert len(calls) == 2 and calls[-1][memory.blocks[0].id] == 2
+    # the same experience again (the memory answers every frame): nothing more
+    n = len(dets)
+    memory_pub.publish(memory)
+    ros.spin_until(lambda: len(dets) > n, timeout_s=0.5)
+    assert len(dets) == n
