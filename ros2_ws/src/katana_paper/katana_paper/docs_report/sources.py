@@ -22,7 +22,7 @@ class Source:
     command: str  # what a user runs to make it
 
 
-BENCHES = ("core", "perception", "sim", "arm", "loop", "record", "driver")
+BENCHES = ("core", "perception", "sim", "arm", "loop", "soak", "record", "driver")
 
 SOURCES: dict[str, Source] = {
     s.name: s
