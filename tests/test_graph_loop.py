@@ -5,6 +5,7 @@ and bad input is refused while the run goes on."""
 from __future__ import annotations
 
 import json
+import threading
 import time
 
 import numpy as np
@@ -12,10 +13,10 @@ from katana_bringup.in_process import InProcessGraph
 from katana_bringup.run import build_nodes, default_params_files, load_params
 from katana_common.action_client import ActionClient
 from katana_common.qos import SENSOR_QOS, STATE_QOS
+from katana_curiosity.curiosity_node import CuriosityNode
 from katana_interfaces.action import PickAndPlace
 from katana_interfaces.msg import Experience, LearnerState
 from katana_interfaces.srv import FindPlacement
-from katana_perception.block_memory_node import BlockMemoryNode
 from katana_perception.perception_node import PerceptionNode
 from sensor_msgs.msg import Image
 
@@ -138,17 +139,28 @@ def _late(cls: type, name: str, seconds: float, monkeypatch) -> None:
     monkeypatch.setattr(cls, name, late)
 
 
+def _published_late(seconds: float, monkeypatch) -> None:
+    """The curiosity node's experience goes out `seconds` after the loop moved on: the memory
+    goes on folding images in meanwhile, as a slow link or a loaded machine would have it."""
+    original = CuriosityNode._publish_experiment
+
+    def late(self, record, step):
+        threading.Timer(seconds, original, (self, record, step)).start()
+
+    monkeypatch.setattr(CuriosityNode, "_publish_experiment", late)
+
+
 def test_two_fast_sim_runs_with_one_seed_write_the_same_log(tmp_path, monkeypatch):
     """Deterministic under a seed: settings, choices, instances, blocks moved, labels and
     dropped attempts are the same in two runs (the sim steps in lock-step with the motions,
-    the loop makes no choice by the clock). The second run hears every experience and memory
-    update late, so that images taken after the experience reach the memory before it, and
-    the perception segments frames on the levels from before it: only the ordering (the
+    the loop makes no choice by the clock). In the second run every experience reaches the
+    memory late while images keep coming, and the perception hears the memory late, so that
+    frames are segmented on the levels from before the experience: only the ordering (the
     memory's experience numbering, not a time margin) keeps the runs together."""
     logs = []
     for run in ("first", "second"):
         if run == "second":
-            _late(BlockMemoryNode, "on_experience", 0.25, monkeypatch)
+            _published_late(0.4, monkeypatch)
             _late(PerceptionNode, "on_memory_blocks", 0.12, monkeypatch)
         with InProcessGraph() as g:
             learner, _, _, _ = run_loop(g, tmp_path / run, experiments=5, seed=3)
