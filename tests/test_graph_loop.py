@@ -5,15 +5,19 @@ and bad input is refused while the run goes on."""
 from __future__ import annotations
 
 import json
+import threading
+import time
 
 import numpy as np
 from katana_bringup.in_process import InProcessGraph
 from katana_bringup.run import build_nodes, default_params_files, load_params
 from katana_common.action_client import ActionClient
 from katana_common.qos import SENSOR_QOS, STATE_QOS
+from katana_curiosity.curiosity_node import CuriosityNode
 from katana_interfaces.action import PickAndPlace
 from katana_interfaces.msg import Experience, LearnerState
 from katana_interfaces.srv import FindPlacement
+from katana_perception.perception_node import PerceptionNode
 from sensor_msgs.msg import Image
 
 
@@ -124,16 +128,44 @@ def _first_difference(a: list[dict], b: list[dict]) -> str:
     return f"{len(a)} vs {len(b)} records"
 
 
-def test_two_fast_sim_runs_with_one_seed_write_the_same_log(tmp_path):
+def _late(cls: type, name: str, seconds: float, monkeypatch) -> None:
+    """Make `cls.name` start `seconds` late: another thread timing, the same inputs."""
+    original = getattr(cls, name)
+
+    def late(self, *args, **kwargs):
+        time.sleep(seconds)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(cls, name, late)
+
+
+def _published_late(seconds: float, monkeypatch) -> None:
+    """The curiosity node's experience goes out `seconds` after the loop moved on: the memory
+    goes on folding images in meanwhile, as a slow link or a loaded machine would have it."""
+    original = CuriosityNode._publish_experiment
+
+    def late(self, record, step):
+        threading.Timer(seconds, original, (self, record, step)).start()
+
+    monkeypatch.setattr(CuriosityNode, "_publish_experiment", late)
+
+
+def test_two_fast_sim_runs_with_one_seed_write_the_same_log(tmp_path, monkeypatch):
     """Deterministic under a seed: settings, choices, instances, blocks moved, labels and
     dropped attempts are the same in two runs (the sim steps in lock-step with the motions,
-    the loop makes no choice by the clock)."""
+    the loop makes no choice by the clock). In the second run every experience reaches the
+    memory late while images keep coming, and the perception hears the memory late, so that
+    frames are segmented on the levels from before the experience: only the ordering (the
+    memory's experience numbering, not a time margin) keeps the runs together."""
     logs = []
     for run in ("first", "second"):
+        if run == "second":
+            _published_late(0.4, monkeypatch)
+            _late(PerceptionNode, "on_memory_blocks", 0.12, monkeypatch)
         with InProcessGraph() as g:
-            learner, _, _, _ = run_loop(g, tmp_path / run, experiments=4, seed=3)
-            g.wait_for(learner.finished.is_set, timeout=200.0)
+            learner, _, _, _ = run_loop(g, tmp_path / run, experiments=5, seed=3)
+            g.wait_for(learner.finished.is_set, timeout=250.0)
         logs.append([{k: v for k, v in r.items() if k not in TIMES}
                      for r in log_records(tmp_path / run)])
-    assert len(logs[0]) == 4
+    assert len(logs[0]) == 5
     assert logs[0] == logs[1], _first_difference(*logs)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from collections import Counter
 from functools import partial
 from pathlib import Path
 
@@ -83,6 +84,7 @@ class CuriosityNode(Node):
                 f"{self.log.quarantine_path} ({lines}); the log as it was is kept as "
                 f"{self.log.original_path}; resuming with {len(self.log)} experiments")
         self._check_checkpoint()
+        self._modes = Counter(r.mode for r in self.log.records)  # for learner_state
         self._stop = threading.Event()
         self.finished = threading.Event()
         group = ReentrantCallbackGroup()
@@ -221,6 +223,7 @@ class CuriosityNode(Node):
     # -- publishing ----------------------------------------------------------------------
 
     def _publish_experiment(self, record, step) -> None:
+        self._modes[record.mode] += 1
         with self.loop.lock:
             self._apply_pending()
         try:
@@ -240,7 +243,7 @@ class CuriosityNode(Node):
 
     def publish_state(self) -> None:
         self.state_pub.publish(learner_state_msg(
-            self.bank, self.log.records, self.strategy_name, self.max_height,
+            self.bank, self._modes, self.strategy_name, self.max_height,
             self.get_clock().now().to_msg(), self.frame_id, self.loop.all_known_at))
 
     def _checkpoint(self) -> str:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point
 from katana_common.messages import duration_msg
@@ -30,14 +32,16 @@ def experience_msg(record: ExperimentRecord, instance: FoveaInstance, stamp: Tim
     return msg
 
 
-def learner_state_msg(bank: PredictorBank, records: list[ExperimentRecord], strategy: str,
+def learner_state_msg(bank: PredictorBank, modes: Mapping[str, int], strategy: str,
                       max_height: int, stamp: Time, frame: str,
                       all_known_at: int | None = None) -> LearnerState:
+    """`modes`: the logged experiments counted by mode (kept as the log grows, so that the
+    message costs the same at the thousandth experiment as at the first)."""
     msg = LearnerState()
     msg.header.stamp, msg.header.frame_id = stamp, frame
-    msg.experiments = len(records)
-    msg.queries = sum(r.mode == "query" for r in records)
-    msg.plans = sum(r.mode == "plan" for r in records)
+    msg.experiments = sum(modes.values())
+    msg.queries = modes.get("query", 0)
+    msg.plans = modes.get("plan", 0)
     msg.strategy = strategy
     msg.alpha = float(bank.rule.alpha)
     msg.theta = float(bank.rule.theta)

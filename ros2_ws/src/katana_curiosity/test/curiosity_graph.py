@@ -44,6 +44,7 @@ class FakeGraph(Node):
         self.goals: list[PickAndPlace.Goal] = []
         self.resets = 0
         self.experiences: list[Experience] = []
+        self.echo = (-1, 0)  # (last experience, frames since), as block_memory_node numbers them
         self.blocks_pub = self.create_publisher(BlockArray, BLOCKS_TOPIC, STATE_QOS)
         self.joints_pub = self.create_publisher(JointState, "joint_states", 10)
         self.create_service(ObserveSetting, "fovea/observe", self.observe)
@@ -57,11 +58,15 @@ class FakeGraph(Node):
             self.ready_pub.publish(Bool(data=arm_ready))
         self.publish_blocks()
         # like block_memory_node, which answers every camera frame with a memory/blocks
-        self.create_timer(0.02, self.publish_blocks)
+        self.create_timer(0.02, self.publish_frame)
+
+    def publish_frame(self) -> None:
+        self.echo = (self.echo[0], self.echo[1] + 1)
+        self.publish_blocks()
 
     def publish_blocks(self) -> None:
         self.joints_pub.publish(JointState(name=["j"], position=[0.0]))
-        msg = BlockArray()
+        msg = BlockArray(experience=self.echo[0], frames_since_experience=self.echo[1])
         msg.header.frame_id = "world"
         for i, (x, y) in enumerate(BLOCK_XY):
             b = Block(id=f"b{i}", color=f"c{i}", level=1, on_top=True, visible=True,
@@ -128,6 +133,7 @@ class FakeGraph(Node):
 
     def on_experience(self, msg: Experience) -> None:
         self.experiences.append(msg)
+        self.echo = (int(msg.index), 0)
         self.publish_blocks()  # the memory answers every experience with a fresh memory/blocks
 
 

@@ -58,7 +58,7 @@ class ScriptedArm:
     def wait_until_current(self) -> None:
         self.calls.append("wait")
 
-    def mark_scene_changed(self) -> None:
+    def mark_scene_changed(self, experience: int | None = None) -> None:
         self.calls.append("mark")
 
     def observe(self) -> Setting:
@@ -223,7 +223,7 @@ class SettingUntilReset:
     def wait_until_current(self) -> None:
         pass
 
-    def mark_scene_changed(self) -> None:
+    def mark_scene_changed(self, experience: int | None = None) -> None:
         pass
 
     def observe(self) -> Setting:

@@ -1,10 +1,12 @@
 """block_memory_node: every block, occluded ones included, with stack levels.
 
-Subscribes perception/detections (what the camera sees now), curiosity/experience (where an
+Subscribes perception/detections (what the camera sees now; a frame located on the levels from
+before the last experience is skipped), curiosity/experience (where an
 experiment put a block and whether it stayed) and camera/camera_info (to locate a seen block
 on the plane of its remembered level). Publishes memory/blocks (transient local) after every
-detection frame and every experience, stamped with the image time it reflects, and the same
-as memory/markers (a box per block, for RViz and Foxglove).
+detection frame and every experience, stamped with the image time it reflects and numbered with
+the last experience handled and the frames folded in since it (the learner's exact ordering),
+and the same as memory/markers (a box per block, for RViz and Foxglove).
 """
 
 from __future__ import annotations
@@ -53,6 +55,8 @@ class BlockMemoryNode(Node):
         self.params.on_change(self._apply)
         self.memory: BlockMemory | None = None
         self.last_stamp = None
+        self.experience = -1  # index of the last curiosity/experience handled
+        self.frames_since_experience = 0
         self.pub = self.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
         self.marker_pub = self.create_publisher(MarkerArray, "memory/markers", STATE_QOS)
         self.create_subscription(BlockArray, "perception/detections", self.on_detections,
@@ -81,6 +85,10 @@ class BlockMemoryNode(Node):
         if self.memory is None:
             self.get_logger().info("waiting for camera/camera_info", throttle_duration_sec=10.0)
             return
+        if msg.experience < self.experience:
+            # located on the levels from before the last experience: a plane the moved block
+            # no longer lies on; the next frame comes from the levels published since
+            return
         if msg.header.frame_id and msg.header.frame_id != self.world_frame:
             self.get_logger().warn(f"detections rejected: frame {msg.header.frame_id!r}, "
                                    f"expected {self.world_frame!r}", throttle_duration_sec=5.0)
@@ -108,9 +116,12 @@ class BlockMemoryNode(Node):
             if what not in ("missing",):
                 self.get_logger().info(f"{bid}: {what}")
         self.last_stamp = msg.header.stamp
+        self.frames_since_experience += 1
         self.publish()
 
     def on_experience(self, msg: Experience) -> None:
+        # handled, folded in or refused: a learner waiting for it must not wait in vain
+        self.experience, self.frames_since_experience = int(msg.index), 0
         if self.memory is None:
             self.get_logger().warn("experience before any camera_info: ignored")
             return
@@ -146,6 +157,7 @@ class BlockMemoryNode(Node):
                                     throttle_duration_sec=5.0)
             blocks = [b for b in blocks if b.id not in bad]
         msg = blocks_to_msg(blocks, header)
+        msg.experience, msg.frames_since_experience = self.experience, self.frames_since_experience
         self.pub.publish(msg)
         self.marker_pub.publish(block_markers(msg))
 

@@ -4,7 +4,8 @@ Subscribes camera/image_raw and camera/camera_info (sensor-data QoS) and memory/
 (transient local: the remembered levels, so a block on a stack is located on the right
 plane, and the "before" memory of the judge). Publishes perception/detections
 (katana_interfaces/BlockArray of the blocks seen in the image; `on_top` means its top face is
-in full view, `level` is the level it was located at) and perception/debug_image. Serves
+in full view, `level` is the level it was located at; `experience` is that of the memory/blocks
+the levels came from) and perception/debug_image. Serves
 perception/judge_placement: PHASE_BEFORE keeps the current image and memory, PHASE_AFTER
 judges the newest image against them.
 """
@@ -85,8 +86,10 @@ class PerceptionNode(Node):
 
         self.calibration = None
         self.levels: dict[str, int] = {}
+        self.levels_experience = -1  # memory/blocks' experience the levels come from
         self.memory_blocks = []
         self.latest_rgb: np.ndarray | None = None
+        self.latest_header: Header | None = None  # the latest image's
         self.frames = 0
         self.before = None  # (snapshot, frame number)
 
@@ -134,6 +137,13 @@ class PerceptionNode(Node):
             return
         self.memory_blocks = blocks
         self.levels = {b.id: b.level for b in blocks}
+        newer = msg.experience > self.levels_experience
+        self.levels_experience = int(msg.experience)
+        if newer and self.latest_rgb is not None and self.calibration is not None:
+            # The memory has folded an experience in and waits for a frame located on its new
+            # levels: the latest image, segmented on them, is that frame (no wait for the next
+            # image; the scene is the one the latest image shows).
+            self._publish_detections(self.latest_rgb, self.latest_header, self.latest_rgb)
 
     def on_image(self, msg: Image) -> None:
         self.images.tick()
@@ -149,22 +159,26 @@ class PerceptionNode(Node):
                 f"{self.calibration.width}x{self.calibration.height}", throttle_duration_sec=5.0)
             return
         previous = self.latest_rgb
-        self.latest_rgb = rgb
+        self.latest_rgb, self.latest_header = rgb, msg.header
         self.frames += 1
+        self._publish_detections(rgb, msg.header, previous)
+
+    def _publish_detections(self, rgb: np.ndarray, image_header: Header, previous) -> None:
+        """perception/detections of `rgb` on the current levels, stamped with its image."""
         # A still scene seen by a still camera (the simulator between motions) repeats its
         # frame exactly: the same pixels and levels segment to the same blocks.
         calib, levels, dets = self._segmented or (None, None, None)
         if not (calib is self.calibration and levels == self.levels
-                and np.array_equal(previous, rgb)):
+                and (previous is rgb or np.array_equal(previous, rgb))):
             dets = self.segmenter.segment(rgb, self.calibration, self.levels)
             self._segmented = (self.calibration, dict(self.levels), dets)
-        header = Header(stamp=msg.header.stamp, frame_id=self.world_frame)
+        header = Header(stamp=image_header.stamp, frame_id=self.world_frame)
         out = BlockArray(header=header,
                          blocks=[detection_to_msg(d, self.calibration)
-                                 for d in dets])
+                                 for d in dets], experience=self.levels_experience)
         self.pub_detections.publish(out)
         if self.publish_debug and self.pub_debug.get_subscription_count() > 0:
-            self.pub_debug.publish(rgb_to_image(self._draw(rgb, dets), msg.header))
+            self.pub_debug.publish(rgb_to_image(self._draw(rgb, dets), image_header))
 
     def _draw(self, rgb: np.ndarray, dets) -> np.ndarray:
         img = rgb.copy()

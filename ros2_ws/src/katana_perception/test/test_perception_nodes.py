@@ -316,6 +316,48 @@ def test_block_memory_node(ros):
     assert len(world) == n
 
 
+def test_block_memory_numbers_its_arrays_with_the_last_experience(ros):
+    """The learner's exact ordering: memory/blocks names the last experience handled and the
+    frames folded in after it, and a frame located on the levels from before that experience
+    (perception echoes the experience its levels came from) is skipped."""
+    ros.make(BlockMemoryNode)
+    pub = ros.helper.create_publisher(BlockArray, "perception/detections", 10)
+    exp_pub = ros.helper.create_publisher(Experience, "curiosity/experience", 10)
+    world = ros.collect(BlockArray, "memory/blocks", STATE_QOS)
+    assert ros.spin_until(lambda: pub.get_subscription_count() > 0)
+    scatter = detections_msg(SCATTER)
+    for _ in range(50):
+        ros.camera_info()
+        pub.publish(scatter)
+        if ros.spin_until(lambda: world, timeout_s=0.3):
+            break
+    assert (world[-1].experience, world[-1].frames_since_experience) == (-1, 1)
+    exp = Experience(label=1, moved_block="red", index=7)
+    exp.instance.state = 1
+    exp.instance.support_ids = ["green"]
+    exp.instance.placement.position.x, exp.instance.placement.position.y = 0.263, -0.1
+    n = len(world)
+    exp_pub.publish(exp)
+    assert ros.spin_until(lambda: len(world) > n)
+    assert (world[-1].experience, world[-1].frames_since_experience) == (7, 0)
+    assert by_id(world[-1])["red"].level == 2
+    stale = detections_msg(SCATTER)  # segmented on the levels before experience 7
+    stale.experience = 6
+    n = len(world)
+    pub.publish(stale)
+    ros.spin_until(lambda: len(world) > n, timeout_s=0.5)
+    assert len(world) == n  # skipped: red stays where the experience put it
+    stacked = [b for b in SCATTER if b.name != "red"] + [stack_block("red", 0.263, -0.1, 2, -0.3)]
+    fresh = detections_msg(stacked, {"green": 1, "red": 2})
+    fresh.experience = 7
+    for frames in (1, 2):
+        pub.publish(fresh)
+        assert ros.spin_until(lambda before=n: len(world) > before)
+        n = len(world)
+        assert (world[-1].experience, world[-1].frames_since_experience) == (7, frames)
+    assert by_id(world[-1])["red"].level == 2
+
+
 def blocks_msg(blocks):
     m = BlockMemory(CALIB)
     m.set_blocks(blocks)
@@ -524,3 +566,38 @@ def test_a_repeated_frame_gives_the_same_blocks_without_segmenting_it_again(ros)
     assert len(calls) == 2 and calls[-1][memory.blocks[0].id] == 2
     frame(4)
     assert len(calls) == 2
+
+
+def test_new_levels_after_an_experience_segment_the_latest_image_again_at_once(ros):
+    """The memory folds an experience in and publishes its new levels: perception answers with
+    detections of its latest image located on them, stamped with that image and numbered with
+    the experience, without waiting for the next image."""
+    node = ros.make(PerceptionNode)
+    calls = []
+    segment = node.segmenter.segment
+    node.segmenter.segment = lambda *a: calls.append(a[2].copy()) or segment(*a)
+    dets = ros.collect(BlockArray, "perception/detections")
+    memory_pub = ros.helper.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
+    assert ros.spin_until(lambda: ros.image_pub.get_subscription_count() > 0)
+    rgb, _ = ros.renderer.render(SCATTER, seed=1)
+    msg = rgb_to_image(rgb, Header(frame_id="camera_optical_frame"))
+    msg.header.stamp.sec = 5
+    for _ in range(50):
+        ros.camera_info()
+        ros.image_pub.publish(msg)
+        if ros.spin_until(lambda: dets, timeout_s=0.3):
+            break
+    assert dets[-1].experience == -1 and len(calls) == 1
+    memory = BlockArray(header=Header(frame_id="world"), blocks=list(dets[-1].blocks),
+                        experience=3)
+    memory.blocks[0].level = 2
+    n = len(dets)
+    memory_pub.publish(memory)
+    assert ros.spin_until(lambda: len(dets) > n)
+    assert dets[-1].experience == 3 and dets[-1].header.stamp.sec == 5
+    assert len(calls) == 2 and calls[-1][memory.blocks[0].id] == 2
+    # the same experience again (the memory answers every frame): nothing more
+    n = len(dets)
+    memory_pub.publish(memory)
+    ros.spin_until(lambda: len(dets) > n, timeout_s=0.5)
+    assert len(dets) == n

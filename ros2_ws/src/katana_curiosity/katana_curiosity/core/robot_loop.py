@@ -194,9 +194,10 @@ class RobotEnvironment(Environment, Protocol):
         """Block until the environment's picture of the scene includes the last experiment."""
         ...
 
-    def mark_scene_changed(self) -> None:
-        """Note that an experiment was just published or the world reset: the next
-        wait_until_current awaits a picture of the scene taken after it."""
+    def mark_scene_changed(self, experience: int | None = None) -> None:
+        """Note that experiment `experience` is about to be published, or the world changed
+        without one (None): the next wait_until_current awaits a picture of the scene taken
+        after it."""
         ...
 
     def blocks_out_of_reach(self) -> list[str]: ...
@@ -441,7 +442,7 @@ class RobotLoop:
         # a known placement that proved the learner wrong ends the chain as a query does
         self.outcomes.made(self._scene, step.state, step.action,
                            known=not taught(record, self.explorer.bank.rule))
-        self.environment.mark_scene_changed()
+        self.environment.mark_scene_changed(record.index)
         self.on_experiment(record, step)
         # A scene that offers nothing but the table (a stack whose top is beyond reach and
         # one loose block) cannot teach anything: have it reset, as a person would.

@@ -162,7 +162,12 @@ def bench_loop(data: Json) -> str:
     rows = [
         ("seconds per experiment, the whole loop in one process (median)", num(spe, 2),
          f"physics, renders, segmentation, judge and fovea in the same windows: {num(floor, 2)}",
-         ratio(spe, floor), met_text(spe, targets.get("s_per_experiment"))),
+         ratio(spe, floor),
+         "; ".join(t for t in (
+             met_text(spe, targets.get("s_per_experiment")),
+             "ratio " + met_text(spe / floor if finite(spe) and finite(floor) and floor else None,
+                                 targets.get("overhead_ratio"))
+             if finite(targets.get("overhead_ratio")) else "") if t and t != "-") or "-"),
         ("the same, against only the two images an experiment needs", num(spe, 2),
          num(two, 2), ratio(spe, two), "-"),
     ]
@@ -217,6 +222,47 @@ def bench_loop_hardware(data: Json) -> str:
                f"{num(get(data, 'between_moves_s'), 2)} s (median) from the end of one to the "
                "sending of the next within an experiment.")
     return "\n".join(out)
+
+
+SOAK_RUN = 1000  # the run the soak's targets are set for
+
+
+def bench_soak(data: Json) -> str:
+    """A long run's last block of experiments beside its first: speed, memory, log writes."""
+    targets = get(data, "targets", default={}) or {}
+    blocks = get(data, "per_block", default=[]) or []
+    first = blocks[0] if blocks else {}
+    last = blocks[-1] if blocks else {}
+    n = get(data, "experiments")
+    rows = [
+        (f"seconds per experiment, experiments {last.get('experiments', '?')} (median)",
+         num(last.get("s_per_experiment"), 2),
+         f"experiments {first.get('experiments', '?')}: {num(first.get('s_per_experiment'), 2)}",
+         ratio(last.get("s_per_experiment"), first.get("s_per_experiment")),
+         "at most " + f"{targets.get('last_over_first_s_per_experiment', float('nan')):g}x"
+         if finite(targets.get("last_over_first_s_per_experiment")) else "-"),
+        ("resident memory of the process at the last block's end, MiB",
+         num(last.get("rss_mib_at_end"), 1),
+         f"at the first block's end: {num(first.get('rss_mib_at_end'), 1)}",
+         f"+{num(get(data, 'rss_growth_mib'), 1)} MiB",
+         met_text(get(data, "rss_growth_mib"), targets.get("rss_growth_mib"))
+         if finite(n) and n >= SOAK_RUN else
+         f"under {num(targets.get('rss_growth_mib'), 0)} MiB over {SOAK_RUN:,} experiments; "
+         f"this run made {num(n)}: not judged"),
+        ("the log's append (write, flush, fsync), ms (median)",
+         num(last.get("log_append_ms")), f"first block: {num(first.get('log_append_ms'))}",
+         ratio(last.get("log_append_ms"), first.get("log_append_ms")), "-"),
+        ("the checkpoint's save, ms (median)", num(last.get("checkpoint_save_ms")),
+         f"first block: {num(first.get('checkpoint_save_ms'))}",
+         ratio(last.get("checkpoint_save_ms"), first.get("checkpoint_save_ms")), "-"),
+    ]
+    per = table(("experiments", "s per experiment", "RSS MiB", "log append ms", "log bytes",
+                 "checkpoint ms", "checkpoint bytes"),
+                [(b.get("experiments"), num(b.get("s_per_experiment"), 2),
+                  num(b.get("rss_mib_at_end"), 1), num(b.get("log_append_ms")),
+                  num(b.get("log_append_bytes"), 0), num(b.get("checkpoint_save_ms")),
+                  num(b.get("checkpoint_bytes"), 0)) for b in blocks])
+    return "\n".join([table(SPEED_HEADER, rows), "", "Per block:", "", per])
 
 
 def bench_record(data: Json) -> str:
@@ -282,8 +328,9 @@ def bench_driver(data: Json) -> str:
 
 
 BENCH_RENDER = {"core": bench_core, "perception": bench_perception, "sim": bench_sim,
-                "arm": bench_arm, "loop": bench_loop, "record": bench_record,
-                "driver": bench_driver, "loop_hardware": bench_loop_hardware}
+                "arm": bench_arm, "loop": bench_loop, "soak": bench_soak,
+                "record": bench_record, "driver": bench_driver,
+                "loop_hardware": bench_loop_hardware}
 
 
 def render_benchmarks(results: Mapping) -> str:
@@ -307,7 +354,7 @@ BENCHMARKS_INTRO = """\
 # Benchmarks
 
 What each benchmark measures, and the figures it gave. `make bench` runs every bench;
-`python bench/run.py NAME ...` runs some of them (core, perception, sim, arm, loop, record,
+`python bench/run.py NAME ...` runs some of them (core, perception, sim, arm, loop, soak, record,
 driver, loop_hardware).
 Each writes `bench/results/NAME.json`, which records the machine it ran on (`machine.cpu_model`,
 `machine.cpus`). The figures below come from the committed copies of those files in
@@ -360,6 +407,13 @@ the same experiments: the time spent inside the work the loop runs on (physics s
 renders, segmentation, the judge and the fovea), summed per experiment; the ratio is the
 loop's overhead (waits, ROS transport). Renders beyond the two images an experiment needs are
 counted apart: they are work nobody uses."""),
+    "soak": ("the loop over a long run", """\
+`bench/bench_soak.py`. `katana-demo` with seed 0 in the bench's own process, as the loop bench
+runs it, for many experiments (`SOAK_EXPERIMENTS`, 1,000 by default). Per block of 100: the
+median seconds per experiment, the process's resident memory (every node is in it) when the
+block's last experiment was logged, and the median time and bytes of the experience log's
+append and of the checkpoint's save. The first block is the floor of the last: a loop that
+slows, grows or writes more as its log grows shows it there."""),
     "record": ("what recording costs the loop", """\
 `bench/bench_record.py`. `katana-demo` with seed 0 in the bench's own process, as the loop
 bench runs it, four times alternately without and with `--record FILE.mcap` (the default

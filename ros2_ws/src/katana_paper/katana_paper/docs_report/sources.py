@@ -22,7 +22,8 @@ class Source:
     command: str  # what a user runs to make it
 
 
-BENCHES = ("core", "perception", "sim", "arm", "loop", "record", "driver", "loop_hardware")
+BENCHES = ("core", "perception", "sim", "arm", "loop", "soak", "record", "driver",
+           "loop_hardware")
 
 SOURCES: dict[str, Source] = {
     s.name: s
