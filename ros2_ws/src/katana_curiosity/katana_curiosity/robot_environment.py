@@ -225,10 +225,11 @@ class RobotEnvironment:
         The memory answers an experience at once (placing the moved block where it was put)
         and refines that pose from the next image; the fovea builds its scene from whichever
         it has when asked. After an experience this waits for a memory/blocks that names it as
-        handled with a detection frame folded in after it: an exact ordering, whatever the
-        thread timing. After a scene change without one (a reset, a skill attempt) it waits
-        for a message stamped `_STAMP_MARGIN_NS` past the change (or, if the stamps are on
-        another clock, the fourth).
+        handled with a settled frame after it (one located on the levels the experience left,
+        which changed none of them: the memory is at rest until the scene changes): an exact
+        ordering, whatever the thread timing. After a scene change without one (a reset, a
+        skill attempt) it waits for a message stamped `_STAMP_MARGIN_NS` past the change (or,
+        if the stamps are on another clock, the fourth).
         """
         if self._experience is not None:
             index = self._experience
@@ -236,7 +237,7 @@ class RobotEnvironment:
                 self._wait(lambda: self._blocks is not None and (
                     self._blocks.experience > index or (
                         self._blocks.experience == index
-                        and self._blocks.frames_since_experience > 0)),
+                        and self._blocks.settled_frames > 0)),
                     self.config.blocks_timeout_s, f"{BLOCKS_TOPIC} after experience {index}")
             except TimeoutError:
                 self._experience = None  # a memory that does not echo: by the stamps next time

@@ -44,7 +44,7 @@ class FakeGraph(Node):
         self.goals: list[PickAndPlace.Goal] = []
         self.resets = 0
         self.experiences: list[Experience] = []
-        self.echo = (-1, 0)  # (last experience, frames since), as block_memory_node numbers them
+        self.echo = (-1, 0)  # (last experience, settled frames), as block_memory_node numbers them
         self.blocks_pub = self.create_publisher(BlockArray, BLOCKS_TOPIC, STATE_QOS)
         self.joints_pub = self.create_publisher(JointState, "joint_states", 10)
         self.create_service(ObserveSetting, "fovea/observe", self.observe)
@@ -66,7 +66,7 @@ class FakeGraph(Node):
 
     def publish_blocks(self) -> None:
         self.joints_pub.publish(JointState(name=["j"], position=[0.0]))
-        msg = BlockArray(experience=self.echo[0], frames_since_experience=self.echo[1])
+        msg = BlockArray(experience=self.echo[0], settled_frames=self.echo[1])
         msg.header.frame_id = "world"
         for i, (x, y) in enumerate(BLOCK_XY):
             b = Block(id=f"b{i}", color=f"c{i}", level=1, on_top=True, visible=True,

@@ -5,7 +5,8 @@ before the last experience is skipped), curiosity/experience (where an
 experiment put a block and whether it stayed) and camera/camera_info (to locate a seen block
 on the plane of its remembered level). Publishes memory/blocks (transient local) after every
 detection frame and every experience, stamped with the image time it reflects and numbered with
-the last experience handled and the frames folded in since it (the learner's exact ordering),
+the last experience handled, the version of its levels and the settled frames since the
+experience (the learner's exact ordering: BlockArray.msg),
 and the same as memory/markers (a box per block, for RViz and Foxglove).
 """
 
@@ -56,7 +57,8 @@ class BlockMemoryNode(Node):
         self.memory: BlockMemory | None = None
         self.last_stamp = None
         self.experience = -1  # index of the last curiosity/experience handled
-        self.frames_since_experience = 0
+        self.levels_version = 0  # counts experiences and changes of the remembered levels
+        self.settled_frames = 0
         self.pub = self.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
         self.marker_pub = self.create_publisher(MarkerArray, "memory/markers", STATE_QOS)
         self.create_subscription(BlockArray, "perception/detections", self.on_detections,
@@ -111,17 +113,23 @@ class BlockMemoryNode(Node):
             self.get_logger().warn("detections rejected: the same block id twice",
                                    throttle_duration_sec=5.0)
             return
+        levels = self.memory.levels()
         events = self.memory.update(seen)
         for bid, what in events.items():
             if what not in ("missing",):
                 self.get_logger().info(f"{bid}: {what}")
         self.last_stamp = msg.header.stamp
-        self.frames_since_experience += 1
+        if self.memory.levels() != levels:  # a block on another plane: locate again on it
+            self.levels_version += 1
+            self.settled_frames = 0
+        elif msg.levels_version == self.levels_version:
+            self.settled_frames += 1
         self.publish()
 
     def on_experience(self, msg: Experience) -> None:
         # handled, folded in or refused: a learner waiting for it must not wait in vain
-        self.experience, self.frames_since_experience = int(msg.index), 0
+        self.experience, self.settled_frames = int(msg.index), 0
+        self.levels_version += 1
         if self.memory is None:
             self.get_logger().warn("experience before any camera_info: ignored")
             return
@@ -157,7 +165,8 @@ class BlockMemoryNode(Node):
                                     throttle_duration_sec=5.0)
             blocks = [b for b in blocks if b.id not in bad]
         msg = blocks_to_msg(blocks, header)
-        msg.experience, msg.frames_since_experience = self.experience, self.frames_since_experience
+        msg.experience, msg.levels_version = self.experience, self.levels_version
+        msg.settled_frames = self.settled_frames
         self.pub.publish(msg)
         self.marker_pub.publish(block_markers(msg))
 

@@ -87,6 +87,7 @@ class PerceptionNode(Node):
         self.calibration = None
         self.levels: dict[str, int] = {}
         self.levels_experience = -1  # memory/blocks' experience the levels come from
+        self.levels_version = 0  # ... and the version of those levels
         self.memory_blocks = []
         self.latest_rgb: np.ndarray | None = None
         self.latest_header: Header | None = None  # the latest image's
@@ -137,12 +138,12 @@ class PerceptionNode(Node):
             return
         self.memory_blocks = blocks
         self.levels = {b.id: b.level for b in blocks}
-        newer = msg.experience > self.levels_experience
-        self.levels_experience = int(msg.experience)
-        if newer and self.latest_rgb is not None and self.calibration is not None:
-            # The memory has folded an experience in and waits for a frame located on its new
-            # levels: the latest image, segmented on them, is that frame (no wait for the next
-            # image; the scene is the one the latest image shows).
+        changed = msg.levels_version != self.levels_version
+        self.levels_experience, self.levels_version = int(msg.experience), int(msg.levels_version)
+        if changed and self.latest_rgb is not None and self.calibration is not None:
+            # The memory has folded an experience in or changed a level and waits for a frame
+            # located on its new levels: the latest image, segmented on them, is that frame (no
+            # wait for the next image; the scene is the one the latest image shows).
             self._publish_detections(self.latest_rgb, self.latest_header, self.latest_rgb)
 
     def on_image(self, msg: Image) -> None:
@@ -175,7 +176,8 @@ class PerceptionNode(Node):
         header = Header(stamp=image_header.stamp, frame_id=self.world_frame)
         out = BlockArray(header=header,
                          blocks=[detection_to_msg(d, self.calibration)
-                                 for d in dets], experience=self.levels_experience)
+                                 for d in dets], experience=self.levels_experience,
+                         levels_version=self.levels_version)
         self.pub_detections.publish(out)
         if self.publish_debug and self.pub_debug.get_subscription_count() > 0:
             self.pub_debug.publish(rgb_to_image(self._draw(rgb, dets), image_header))

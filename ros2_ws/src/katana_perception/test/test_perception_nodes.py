@@ -317,9 +317,10 @@ def test_block_memory_node(ros):
 
 
 def test_block_memory_numbers_its_arrays_with_the_last_experience(ros):
-    """The learner's exact ordering: memory/blocks names the last experience handled and the
-    frames folded in after it, and a frame located on the levels from before that experience
-    (perception echoes the experience its levels came from) is skipped."""
+    """The learner's exact ordering: memory/blocks names the last experience handled, its levels
+    version and the settled frames after the experience (located on the current levels, changing
+    none); a frame located on the levels from before that experience (perception echoes the
+    experience its levels came from) is skipped."""
     ros.make(BlockMemoryNode)
     pub = ros.helper.create_publisher(BlockArray, "perception/detections", 10)
     exp_pub = ros.helper.create_publisher(Experience, "curiosity/experience", 10)
@@ -331,7 +332,7 @@ def test_block_memory_numbers_its_arrays_with_the_last_experience(ros):
         pub.publish(scatter)
         if ros.spin_until(lambda: world, timeout_s=0.3):
             break
-    assert (world[-1].experience, world[-1].frames_since_experience) == (-1, 1)
+    assert (world[-1].experience, world[-1].settled_frames) == (-1, 0)  # the levels are new
     exp = Experience(label=1, moved_block="red", index=7)
     exp.instance.state = 1
     exp.instance.support_ids = ["green"]
@@ -339,7 +340,8 @@ def test_block_memory_numbers_its_arrays_with_the_last_experience(ros):
     n = len(world)
     exp_pub.publish(exp)
     assert ros.spin_until(lambda: len(world) > n)
-    assert (world[-1].experience, world[-1].frames_since_experience) == (7, 0)
+    assert (world[-1].experience, world[-1].settled_frames) == (7, 0)
+    version = world[-1].levels_version
     assert by_id(world[-1])["red"].level == 2
     stale = detections_msg(SCATTER)  # segmented on the levels before experience 7
     stale.experience = 6
@@ -349,12 +351,17 @@ def test_block_memory_numbers_its_arrays_with_the_last_experience(ros):
     assert len(world) == n  # skipped: red stays where the experience put it
     stacked = [b for b in SCATTER if b.name != "red"] + [stack_block("red", 0.263, -0.1, 2, -0.3)]
     fresh = detections_msg(stacked, {"green": 1, "red": 2})
-    fresh.experience = 7
-    for frames in (1, 2):
+    fresh.experience, fresh.levels_version = 7, version
+    for frames in (1, 2):  # located on the levels the experience left, changing none: settled
         pub.publish(fresh)
         assert ros.spin_until(lambda before=n: len(world) > before)
         n = len(world)
-        assert (world[-1].experience, world[-1].frames_since_experience) == (7, frames)
+        assert (world[-1].experience, world[-1].settled_frames) == (7, frames)
+        assert world[-1].levels_version == version
+    fresh.levels_version = version - 1  # on other levels: folded, not counted as settled
+    pub.publish(fresh)
+    assert ros.spin_until(lambda before=n: len(world) > before)
+    assert world[-1].settled_frames == 2
     assert by_id(world[-1])["red"].level == 2
 
 
@@ -571,7 +578,7 @@ def test_a_repeated_frame_gives_the_same_blocks_without_segmenting_it_again(ros)
 def test_new_levels_after_an_experience_segment_the_latest_image_again_at_once(ros):
     """The memory folds an experience in and publishes its new levels: perception answers with
     detections of its latest image located on them, stamped with that image and numbered with
-    the experience, without waiting for the next image."""
+    the experience and levels version, without waiting for the next image."""
     node = ros.make(PerceptionNode)
     calls = []
     segment = node.segmenter.segment
@@ -589,14 +596,15 @@ def test_new_levels_after_an_experience_segment_the_latest_image_again_at_once(r
             break
     assert dets[-1].experience == -1 and len(calls) == 1
     memory = BlockArray(header=Header(frame_id="world"), blocks=list(dets[-1].blocks),
-                        experience=3)
+                        experience=3, levels_version=4)
     memory.blocks[0].level = 2
     n = len(dets)
     memory_pub.publish(memory)
     assert ros.spin_until(lambda: len(dets) > n)
-    assert dets[-1].experience == 3 and dets[-1].header.stamp.sec == 5
+    assert (dets[-1].experience, dets[-1].levels_version) == (3, 4)
+    assert dets[-1].header.stamp.sec == 5
     assert len(calls) == 2 and calls[-1][memory.blocks[0].id] == 2
-    # the same experience again (the memory answers every frame): nothing more
+    # the same levels version again (the memory answers every frame): nothing more
     n = len(dets)
     memory_pub.publish(memory)
     ros.spin_until(lambda: len(dets) > n, timeout_s=0.5)
