@@ -409,7 +409,7 @@ def test_fovea_node_services(ros):
 def test_pipeline_image_to_instances(ros):
     ros.make(PerceptionNode)
     ros.make(BlockMemoryNode)
-    ros.make(FoveaNode)
+    fovea = ros.make(FoveaNode)
     world = ros.collect(BlockArray, "memory/blocks", STATE_QOS)
     observe = ros.helper.create_client(ObserveSetting, "fovea/observe")
     scene = SCATTER[1:] + [stack_block("red", 0.185, -0.068, 2, 0.45)]  # red on blue
@@ -428,6 +428,10 @@ def test_pipeline_image_to_instances(ros):
             break
     got = by_id(world[-1])
     assert got["red"].level == 2 and not got["blue"].on_top
+    # the fovea hears memory/blocks on its own executor thread: it answers from what it has
+    # heard, so wait until it has heard the stack (the collector above may hear it first)
+    assert ros.spin_until(lambda: fovea.blocks is not None and any(
+        b.id == "red" and b.level == 2 for b in fovea.blocks))
     res = ros.call(observe, ObserveSetting.Request(max_height=255))
     assert res.success and {i.state for i in res.instances} == {0, 1, 2}
     assert any(list(i.support_ids) == ["blue", "red"] for i in res.instances)
