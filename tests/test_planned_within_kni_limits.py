@@ -6,6 +6,8 @@ from it, by finite differences of the trajectory sampled densely (ROS-free)."""
 from __future__ import annotations
 
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 from hypothesis import given, settings
@@ -15,8 +17,10 @@ from katana_description import models as m
 from katana_driver.core.encoders import EncoderModel
 from katana_driver.core.splines import TrajectoryError, plan_trajectory
 from katana_manipulation.core import pick_place as pp
-from katana_manipulation.core.reach import pick_reach, place_reach
 from scipy.interpolate import CubicHermiteSpline
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
+from planned_requests import reachable_requests  # noqa: E402
 
 MODEL = EncoderModel()
 CONTRACT = ac.ArmContract()
@@ -94,29 +98,14 @@ def _check(segments, start, offset) -> int:
     return moves
 
 
-def _at(band, frac: float, angle: float, z: float) -> tuple[float, float, float]:
-    r = band.min_m + frac * (band.max_m - band.min_m)
-    return (r * math.cos(angle), r * math.sin(angle), z)
-
-
 _offsets = st.lists(st.integers(-3, 3), min_size=5, max_size=5)
 
 
 @settings(max_examples=40, deadline=None)
-@given(pick_level=st.integers(1, 3), place_height=st.integers(0, 3),
-       pick=st.tuples(st.floats(0.02, 0.98), st.floats(-1.4, 1.4), st.floats(-1.5, 1.5)),
-       place=st.tuples(st.floats(0.02, 0.98), st.floats(-1.4, 1.4), st.floats(-1.5, 1.5)),
-       offset=_offsets)
-def test_every_planned_pick_and_place_is_one_the_driver_accepts(pick_level, place_height,
-                                                                 pick, place, offset):
-    h = m.BLOCK_SIZE[2]
-    pick_band, place_band = pick_reach(pick_level, h), place_reach(place_height, h)
-    if pick_band.empty or place_band.empty:
+@given(req=reachable_requests(), offset=_offsets)
+def test_every_planned_pick_and_place_is_one_the_driver_accepts(req, offset):
+    if req is None:
         return
-    req = pp.PickPlaceRequest(_at(pick_band, pick[0], pick[1], (pick_level - 0.5) * h), pick[2],
-                              m.BLOCK_SIZE,
-                              _at(place_band, place[0], place[1], (place_height + 0.5) * h),
-                              place[2])
     try:
         segments = PLANNER.plan(req, m.PARK_POSE)
     except pp.PlanError as exc:  # in reach, yet the inverse kinematics of its yaw may fail
