@@ -15,7 +15,8 @@ blocks instead.
 The search is the paper's top-down one: for each available state in ascending order, the
 fovea moves over a grid around each stack of that height (around free table places for
 state 0) and every distinct (state, action) is reported once per stack, with the first
-location that realised it.
+location that realised it; on a stack of two or more, a finer grid then looks for the actions
+the grid missed (as `find` does), so the offer holds every action the arm can make there.
 """
 
 from __future__ import annotations
@@ -404,7 +405,10 @@ class FoveaScene:
                 return inst
         return None
 
-    def _stack_instances(self, st: _Stack, step: float, want: int | None = None):
+    def _stack_instances(self, st: _Stack, step: float, want: frozenset[int] | None = None):
+        """The first location of each distinct action around `st` (of the actions in `want`
+        only, when given), in scan order."""
+        wanted = frozenset(range(1, N_ACTIONS + 1)) if want is None else want
         seen: set[int] = set()
         for u, v, ang in self._around(st, step):
             if not self._in_image(u, v):
@@ -413,14 +417,14 @@ class FoveaScene:
             if under is not st:
                 continue
             a = action_of(bits)
-            if a in seen or (want is not None and a != want):
+            if a in seen or a not in wanted:
                 continue
             inst = self._instance(state, bits, u, v, ang, st)
             if inst is None:
                 continue
             seen.add(a)
             yield inst
-            if want is not None or len(seen) == N_ACTIONS:
+            if len(seen) == len(wanted):
                 return
 
     def observe(self, max_height: int | None = None) -> list[Instance]:
@@ -434,8 +438,22 @@ class FoveaScene:
                 continue
             for st in self.stacks:
                 if st.height == s and st.offered:
-                    out.extend(self._stack_instances(st, self.params.grid_step_px))
+                    out.extend(self._offer_on(st))
         return out
+
+    def _offer_on(self, st: _Stack) -> list[Instance]:
+        """Every action a placement on `st` can realise, found as `find` finds it: the grid,
+        then the fine grid for the actions the grid missed. An action only the fine grid
+        reaches (on a stack, the sliver where exactly one corner leaves the turned top faces'
+        intersection) is one the arm can make, so it is offered; otherwise a plan towards it
+        would build stacks whose offer never shows it. On a single block nothing is missed
+        that the fine grid could add but the all-but-one-corner action, which an aligned face
+        never realises (`feasible_actions`), so a stack of one gets the grid only."""
+        found = list(self._stack_instances(st, self.params.grid_step_px))
+        missing = frozenset(range(1, N_ACTIONS + 1)) - {inst.action for inst in found}
+        if st.height > 1 and missing and self.params.fine_step_px < self.params.grid_step_px:
+            found.extend(self._stack_instances(st, self.params.fine_step_px, want=missing))
+        return found
 
     def find(self, state: int, action: int) -> Instance:
         """The first fovea location realising (state, action), or NotFound with a reason."""
@@ -459,7 +477,7 @@ class FoveaScene:
             for st in self.stacks:
                 if st.height != state or not st.offered:
                     continue
-                for inst in self._stack_instances(st, step, want=action):
+                for inst in self._stack_instances(st, step, want=frozenset((action,))):
                     return inst
         raise NotFound(f"no reachable fovea location around a stack of height {state} "
                        f"realises action {action}")
