@@ -14,6 +14,7 @@ Renders beyond the two images an experiment needs are shown apart
 
 from __future__ import annotations
 
+import bisect
 import json
 import statistics
 import tempfile
@@ -34,10 +35,14 @@ TARGETS = {"s_per_experiment": 1.0, "overhead_ratio": 1.3, "dropped_fraction": 0
 
 
 class Meter:
-    """Wraps methods to record (wall end time, seconds, kind) of their outermost calls."""
+    """Wraps methods to record (wall end time, seconds, kind) of their outermost calls; with
+    keep_events False only the running seconds per kind (`totals`), in memory that does not
+    grow with the run."""
 
-    def __init__(self) -> None:
+    def __init__(self, keep_events: bool = True) -> None:
+        self.keep_events = keep_events
         self.events: list[tuple[float, float, str]] = []
+        self.totals: dict[str, float] = defaultdict(float)
         self._local = threading.local()
         self._lock = threading.Lock()
         self._undo: list[tuple[type, str, object]] = []
@@ -55,8 +60,11 @@ class Meter:
             finally:
                 meter._local.depth = depth
                 if depth == 0:
+                    seconds = time.perf_counter() - start
                     with meter._lock:
-                        meter.events.append((time.time(), time.perf_counter() - start, kind))
+                        meter.totals[kind] += seconds
+                        if meter.keep_events:
+                            meter.events.append((time.time(), seconds, kind))
 
         setattr(cls, name, timed)
         self._undo.append((cls, name, original))
@@ -85,15 +93,18 @@ def _median(values: list[float]) -> float | None:
 KINDS = ("physics", "render", "segment", "judge", "fovea")
 
 
-def _demo_run(meter: Meter) -> tuple[list[dict], dict, float]:
-    """katana-demo in this process with `meter` on: the logged records, the summary, wall s."""
+def demo_run(meter: Meter, experiments: int = EXPERIMENTS,
+             ros_args: tuple[str, ...] = ()) -> tuple[list[dict], dict, float]:
+    """katana-demo (seed 0) in this process with `meter` on: the logged records, the summary,
+    wall s."""
     _instrument(meter)
     try:
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(tmp) / "run"
             start = time.perf_counter()
-            code = demo.main(["--experiments", str(EXPERIMENTS), "--out", str(out),
-                              "--seed", "0", "--timeout", str(60 * EXPERIMENTS)])
+            code = demo.main(["--experiments", str(experiments), "--out", str(out),
+                              "--seed", "0", "--timeout", str(60 * experiments),
+                              *(("--ros-args", *ros_args) if ros_args else ())])
             wall = time.perf_counter() - start
             if code != 0:
                 raise RuntimeError(f"katana-demo exited with {code}")
@@ -105,21 +116,22 @@ def _demo_run(meter: Meter) -> tuple[list[dict], dict, float]:
     return records, summary, wall
 
 
-def _windows(times: list[float], events: list[tuple[float, float, str]]):
+def windows(times: list[float], events: list[tuple[float, float, str]]):
     """Per window (previous experiment logged, this one logged]: the seconds of each kind of
     work, and the renders and segmentations in it."""
+    events = sorted(events)
+    ends = [end for end, _, _ in events]
     floors: list[dict[str, float]] = []
     renders: list[int] = []
     segments: list[int] = []
     for a, b in zip(times, times[1:], strict=False):
+        inside = events[bisect.bisect_right(ends, a):bisect.bisect_right(ends, b)]
         sums: dict[str, float] = defaultdict(float)
-        for end, seconds, kind in events:
-            if a < end <= b:
-                sums[kind] += seconds
+        for _, seconds, kind in inside:
+            sums[kind] += seconds
         floors.append(dict(sums))
-        renders.append(sum(1 for end, _, kind in events if kind == "render" and a < end <= b))
-        segments.append(sum(1 for end, _, kind in events
-                            if kind == "segment" and a < end <= b))
+        renders.append(sum(1 for _, _, kind in inside if kind == "render"))
+        segments.append(sum(1 for _, _, kind in inside if kind == "segment"))
     return floors, renders, segments
 
 
@@ -146,10 +158,10 @@ NOTES = (f"katana-demo --experiments {EXPERIMENTS} --seed 0 in this process (sim
 def run() -> dict:
     camera_rate_hz = load_params(default_params_files("sim"))["sim_node"]["camera_rate"]
     meter = Meter()
-    records, summary, wall = _demo_run(meter)
+    records, summary, wall = demo_run(meter)
     times = [r["wall_time"] for r in records]
     gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
-    floors, renders, segments = _windows(times, meter.events)
+    floors, renders, segments = windows(times, meter.events)
 
     def stage(name: str) -> list[float]:
         return [r["stage_s"][name] for r in records[1:] if name in r.get("stage_s", {})]

@@ -2,12 +2,15 @@
 its start?
 
 Runs `katana-demo` in this process (every node in one process, headless, real_time_factor 0,
-seed 0, going on once every pair is known) for EXPERIMENTS experiments (SOAK_EXPERIMENTS in the environment overrides it) and
-reports per block of BLOCK experiments: the seconds per experiment (median gap between logged
-experiments), the resident memory of the process (every node is in it) when the block ended,
-and the time inside the experience log's append (write, flush, fsync) and the checkpoint's save
-per experiment, with the bytes each wrote. The first block is the floor of the last: a loop
-that slows, grows or writes more as its log grows shows it there.
+seed 0, going on once every pair is known) for EXPERIMENTS experiments (SOAK_EXPERIMENTS in the
+environment overrides it) and reports per block of BLOCK experiments: the seconds per
+experiment (median gap between logged experiments) beside that block's floor (the median time
+inside physics, renders, segmentation, the judge and the fovea per experiment, measured as
+bench_loop measures it), the resident memory of the process (every node is in it) when the
+block ended, and the time inside the experience log's append (write, flush, fsync) and the
+checkpoint's save per experiment, with the bytes each wrote. The first block is the floor of
+the last: a loop that slows, grows or writes more as its log grows shows it there; the floor
+per block tells a slower loop from a busier machine.
 """
 
 from __future__ import annotations
@@ -15,12 +18,11 @@ from __future__ import annotations
 import json
 import os
 import statistics
-import tempfile
 import threading
 import time
 from pathlib import Path
 
-from katana_bringup import demo
+from bench_loop import Meter, demo_run
 from katana_curiosity import curiosity_node
 from katana_curiosity.core import run_record
 
@@ -39,10 +41,13 @@ def rss_mib() -> float:
 
 
 class Writes:
-    """Times the log's append and the checkpoint's save, and samples the RSS after every
-    experiment (the append is the moment an experiment is logged)."""
+    """Times the log's append and the checkpoint's save, and samples the RSS and the work the
+    meter has counted after every experiment (the append is the moment an experiment is
+    logged)."""
 
-    def __init__(self) -> None:
+    def __init__(self, meter: Meter) -> None:
+        self.meter = meter
+        self.work_s: list[float] = []  # the meter's seconds of work when each was logged
         self.appends: list[tuple[float, int]] = []  # (seconds, bytes the log grew by)
         self.saves: list[tuple[float, int]] = []  # (seconds, bytes of the checkpoint)
         self.rss: list[float] = []
@@ -62,6 +67,7 @@ class Writes:
             with writes._lock:
                 writes.appends.append((seconds, log.path.stat().st_size - before))
                 writes.rss.append(rss_mib())
+                writes.work_s.append(sum(writes.meter.totals.values()))
 
         def timed_save(path, *args, **kwargs):
             start = time.perf_counter()
@@ -92,35 +98,29 @@ def _median(values: list[float], digits: int = 4) -> float | None:
 
 
 def run() -> dict:
-    writes = Writes()
+    meter = Meter(keep_events=False)  # a list of every physics step would grow the RSS
+    writes = Writes(meter)
     writes.install()
     rss_start = rss_mib()
     try:
-        with tempfile.TemporaryDirectory() as tmp:
-            out = Path(tmp) / "run"
-            start = time.perf_counter()
-            # the run goes on once everything is known: the soak measures the loop, not
-            # the learning, and a run that ends at all_known_at is too short to be one
-            code = demo.main(["--experiments", str(EXPERIMENTS), "--out", str(out),
-                              "--seed", "0", "--timeout", str(60 * EXPERIMENTS),
-                              "--ros-args", "-p", "curiosity_node:stop_when_all_known:=false"])
-            wall = time.perf_counter() - start
-            if code != 0:
-                raise RuntimeError(f"katana-demo exited with {code}")
-            records = [json.loads(line)
-                       for line in (out / "experience.jsonl").read_text().splitlines()]
-            summary = json.loads((out / "summary.json").read_text())
+        # the run goes on once everything is known: the soak measures the loop, not the
+        # learning, and a run that ends at all_known_at is too short to be one
+        records, summary, wall = demo_run(
+            meter, EXPERIMENTS, ("-p", "curiosity_node:stop_when_all_known:=false"))
     finally:
         writes.restore()
     times = [r["wall_time"] for r in records]
     gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
+    floors = [b - a for a, b in zip(writes.work_s, writes.work_s[1:], strict=False)]
     per_block = []
-    for k, (gap, app, save, rss) in enumerate(zip(
-            _blocks(gaps, BLOCK), _blocks(writes.appends, BLOCK), _blocks(writes.saves, BLOCK),
-            _blocks(writes.rss, BLOCK), strict=False)):
+    for k, (gap, floor, app, save, rss) in enumerate(zip(
+            _blocks(gaps, BLOCK), _blocks(floors, BLOCK), _blocks(writes.appends, BLOCK),
+            _blocks(writes.saves, BLOCK), _blocks(writes.rss, BLOCK), strict=False)):
         per_block.append({
             "experiments": f"{k * BLOCK}-{k * BLOCK + len(app) - 1}",
             "s_per_experiment": _median(gap),
+            "floor_s": _median(floor),
+            "overhead_ratio": round(_median(gap) / _median(floor), 3),
             "rss_mib_at_end": round(rss[-1], 1),
             "log_append_ms": _median([s * 1e3 for s, _ in app], 3),
             "log_append_bytes": _median([float(b) for _, b in app], 1),
@@ -138,6 +138,8 @@ def run() -> dict:
         "block": BLOCK,
         "per_block": per_block,
         "last_over_first_s_per_experiment": ratio("s_per_experiment"),
+        "last_over_first_floor": ratio("floor_s"),
+        "last_over_first_overhead_ratio": ratio("overhead_ratio"),
         "last_over_first_log_append": ratio("log_append_ms"),
         "last_over_first_checkpoint_save": ratio("checkpoint_save_ms"),
         "rss_mib_before_run": round(rss_start, 1),
@@ -149,7 +151,9 @@ def run() -> dict:
         "notes": (f"katana-demo --experiments {EXPERIMENTS} --seed 0 --ros-args -p "
                   "curiosity_node:stop_when_all_known:=false in this process (sim at "
                   "real_time_factor 0, every node in one process, headless); per block of "
-                  f"{BLOCK}: the median gap between logged experiments, the process's RSS "
+                  f"{BLOCK}: the median gap between logged experiments beside the median "
+                  "time inside physics, renders, segmentation, the judge and the fovea "
+                  "between them (floor_s), the process's RSS "
                   "when its last experiment was logged, and the median time and bytes of the "
                   "log's append and the checkpoint's save; rss_growth_mib is the last "
                   "block's RSS less the first's (the first block is the floor of the last)."),

@@ -409,10 +409,13 @@ def test_when_everything_that_can_occur_is_known_the_loop_says_so_and_ends(tmp_p
     assert loop.run() == "done: everything the arm can realise is known after 0 experiments"
     assert loop.all_known_at == 0 and len(loop.log) == 0
     assert any("is known after 0 experiments" in line for line in loop.logger.lines)
-    # by the parameter, the loop goes on planning (the model keeps being refined)
+    # by the parameter, the loop goes on planning (the model keeps being refined, as the
+    # paper's agent does once everything is known): it follows the plan, since no setting
+    # has anything unknown to offer, and never resets for one
     loop.policy = LoopPolicy(max_experiments=5, backoff_s=0.0, stop_when_all_known=False)
     assert loop.run() == "done: 5 experiments"
     assert {r.mode for r in loop.log.records} == {"plan"} and loop.all_known_at == 0
+    assert loop.resets == 0 and not any(r.dropped_before for r in loop.log.records)
 
 
 def test_the_same_offer_over_other_stacks_is_another_setting(tmp_path) -> None:

@@ -29,6 +29,8 @@ Policy (the paper's robot had a person for this; here it is explicit):
   arm does not realise (`progress.Realisability`): the planner puts no phantom reward on it.
 - When no pair the arm can realise is unknown, the loop says so once and, if
   `stop_when_all_known`, ends: the paper's agent "knows when to stop its planning efforts".
+  Otherwise it follows its plans without changing the setting (no setting has anything
+  unknown to offer), refining the model as the paper's agent does once everything is known.
 - Every wait watches `stop`, so `stop.set()` ends the loop at once.
 Choices depend only on the seed and on what the environment reports, never on wall time.
 """
@@ -350,6 +352,8 @@ class RobotLoop:
     def _worth_making(self, strategy: Strategy, choice: Choice) -> str | None:
         if not self.policy.setting_changes or self._setting_changes >= self.policy.setting_changes:
             return None  # resets did not help (or are not wanted): follow the plan
+        if self.all_known_at is not None:
+            return None  # nothing is left unknown: no setting offers more than this plan
         unknown = self.explorer.bank.unknown
         if not unknown[choice.state, choice.action]:
             if self.outcomes.detour_too_long:
