@@ -98,6 +98,18 @@ class _Columns:
     release: float  # ... and to release with
 
 
+def _distinct(start: Sequence[float], points: Sequence) -> list[np.ndarray]:
+    """The knots of a move (what `timed` times): `start`, then each point that moves some
+    joint by 1e-3 rad or more from the knot before it (a point closer is no move worth a
+    segment)."""
+    q = [np.asarray(start, float)]
+    for pt in points:
+        pt = np.asarray(pt, float)
+        if np.max(np.abs(pt - q[-1])) >= 1e-3:
+            q.append(pt)
+    return q
+
+
 class PickPlacePlanner:
     """Plans with its `PickPlaceParams`; the reach it checks goals against (core.reach) is
     computed with the same settings (`params.geometry`), not with the defaults."""
@@ -125,11 +137,7 @@ class PickPlacePlanner:
         over h peaks at 1.5 d / h and 6 d / h^2."""
         vmax = MAX_SPEED * self.p.speed_fraction
         amax = MAX_ACCEL * self.p.accel_fraction
-        q = [np.asarray(start, float)]
-        for pt in points:
-            pt = np.asarray(pt, float)
-            if np.max(np.abs(pt - q[-1])) >= 1e-3:  # else no move worth a segment
-                q.append(pt)
+        q = _distinct(start, points)
         if len(q) == 1:
             return [], [], []
         qs, v_opt, ticks = self._optimal_knots(np.array(q), vmax, amax)
@@ -434,11 +442,9 @@ class PickPlacePlanner:
         segs: list[Segment] = []
 
         def arm(phase: str, start: np.ndarray, pts: list[np.ndarray]) -> np.ndarray:
-            points, times, vels = self.timed(start, pts)
-            if points:
-                segs.append(Segment(phase, "arm", points, times, vels, start=list(start),
-                                    waypoints=list(pts)))
-            return pts[-1]
+            if len(_distinct(start, pts)) > 1:  # a move (`timed` gives it points): timed
+                segs.append(Segment(phase, "arm", start=list(start), waypoints=list(pts)))
+            return pts[-1]  # once, in _merged, with the moves it runs into
 
         q, approach_pts = current, []
         low = self.kin.tool_position(current)[2] < self.p.transit_height - 0.02
@@ -477,17 +483,21 @@ class PickPlacePlanner:
 
     def _merged(self, segs: list[Segment]) -> list[Segment]:
         """Run consecutive arm moves as one trajectory: one goal instead of two, and no stop
-        between them (approach into descend, retreat into park), on the same waypoints."""
+        between them (approach into descend, retreat into park), on the same waypoints. Each
+        trajectory is timed here, once: timing the moves before merging them was most of the
+        planning time of a pick-and-place, spent on timings nobody ran."""
         out: list[Segment] = []
         for seg in segs:
             prev = out[-1] if out else None
             if seg.kind == "arm" and prev is not None and prev.kind == "arm":
-                pts = prev.waypoints + seg.waypoints
-                points, times, vels = self.timed(prev.start, pts)
-                out[-1] = Segment(prev.phase, "arm", points, times, vels, start=prev.start,
-                                  waypoints=pts, also=(*prev.also, seg.phase))
+                out[-1] = Segment(prev.phase, "arm", start=prev.start,
+                                  waypoints=prev.waypoints + seg.waypoints,
+                                  also=(*prev.also, seg.phase))
             else:
                 out.append(seg)
+        for seg in out:
+            if seg.kind == "arm":
+                seg.points, seg.times, seg.velocities = self.timed(seg.start, seg.waypoints)
         return out
 
     def placement_reachable(self, place: Sequence[float], place_yaw: float = 0.0,
