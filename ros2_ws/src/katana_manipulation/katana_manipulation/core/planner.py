@@ -337,6 +337,17 @@ class PickPlacePlanner:
         return self._merged(self._sequence(current, ends, columns,
                                            (t_here, t_pick, t_place, t_park), park))
 
+    def pregrasp(self, req: PickPlaceRequest) -> float:
+        """The finger angle `plan` opens to first (its first segment), from the goal alone:
+        the gripper can move there while the rest is planned. Raises PlanError as `plan`
+        does for a malformed goal or a pick or place out of reach."""
+        self._checked(req)
+        return self._pregrasp(self._ends(req).grip_width)
+
+    def _pregrasp(self, grip_width: float) -> float:
+        return min(m.GRIPPER_OPEN,
+                   m.finger_angle_for_opening(grip_width + self.p.pregrasp_margin))
+
     def _checked(self, req: PickPlaceRequest) -> float:
         """Refuse a malformed goal or one outside the reach; the block's height."""
         vals = list(req.pick) + [req.pick_yaw] + list(req.block_size) + list(req.place) + [
@@ -409,8 +420,7 @@ class PickPlacePlanner:
         """Columns above the pick and the place: climbed before heading for the transit pose,
         to where the pads (empty) or the held block clear a stack of clear_stack_blocks."""
         p = self.p
-        pregrasp = min(m.GRIPPER_OPEN,
-                       m.finger_angle_for_opening(ends.grip_width + p.pregrasp_margin))
+        pregrasp = self._pregrasp(ends.grip_width)
         stacks_top = p.clear_stack_blocks * sz + p.clearance
         pad_below_tool = m.FINGER_PAD_LENGTH / 2
         held_below_tool = p.grasp_offset + sz / 2
