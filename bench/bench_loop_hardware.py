@@ -10,7 +10,10 @@ the sum of its arm segments' durations, and its least time is core.time_optimal'
 knots the driver sent, each rest-to-rest move on its own (a move ends where every arm joint is
 at rest). The floor of the loop is that motion: the target is at most motion + 1 s.
 `between_moves_s` is the time from the end of one move to the sending of the next within an
-experiment (the grips and checks between them, and the goals' round trips).
+experiment (the grips and checks between them, and the goals' round trips);
+`finger_motion_s` the time the emulated fingers moved in an experiment (the arm stands
+meanwhile), and `beyond_motion_s` an experiment's time beyond both motions: planning, goal
+round trips, the driver's end-of-move detection, perception and learning.
 """
 
 from __future__ import annotations
@@ -41,19 +44,29 @@ ARM_MOTORS = 5
 REST_ENC_PER_TICK = 0.05  # an end slope below this is at rest
 
 
-def start_emulator(recorded: list):
+def start_emulator(recorded: list, finger_ticks: list | None = None):
     """The emulator, in real time, serving on a free loopback port with a 4 cm block in the
     gripper (as `katana-emulator --block-width-m 0.04`); every spline segment it accepts is
-    appended to ``recorded`` as (wall time, motor index, segment). In process: the recording
-    wraps the model's segment check."""
+    appended to ``recorded`` as (wall time, motor index, segment), and the wall time of every
+    10 ms tick in which the fingers moved to ``finger_ticks``. In process: the recording wraps
+    the model's segment check and its motor step."""
     model = KatanaModel(variant="6M180", time_scale=1.0, block_width_m=models.BLOCK_SIZE[0])
     check = model._check_spline
+    step = model._step
+    wall_minus_mono = time.time() - time.monotonic()
 
     def recording(m, seg, queued):
         check(m, seg, queued)
         recorded.append((time.time(), m.index, seg))
 
+    def stepping(m, tick):
+        before = m.pos
+        step(m, tick)
+        if finger_ticks is not None and m.index == 6 and m.pos != before:
+            finger_ticks.append(wall_minus_mono + model._t0 + tick * TICK_S / model.time_scale)
+
     model._check_spline = recording
+    model._step = stepping
     emu = KatanaEmulator(model, Faults())
     emu.serve_tcp("127.0.0.1", 0)
     return emu, emu.address
@@ -96,7 +109,8 @@ def _moves(rows: list) -> list[tuple[float, float, np.ndarray]]:
 
 def run() -> dict:
     recorded: list = []
-    emu, (host, port) = start_emulator(recorded)
+    finger_ticks: list = []
+    emu, (host, port) = start_emulator(recorded, finger_ticks)
     tmp = Path(tempfile.mkdtemp(prefix="bench_loop_hardware_"))
     overlay = tmp / "emulator.yaml"
     overlay.write_text(
@@ -134,10 +148,11 @@ def run() -> dict:
     records = [json.loads(line) for line in experiences.read_text().splitlines()][:EXPERIMENTS]
     walls = [r["wall_time"] for r in records]
     moves = _moves(_rows(recorded))
-    motion, least, idle = [], [], []
+    motion, least, idle, fingers = [], [], [], []
     for a, b in zip(walls[:-1], walls[1:], strict=True):  # the moves logged with experiment b
         inside = [mv for mv in moves if a < mv[0] <= b]
         motion.append(sum(mv[1] for mv in inside))
+        fingers.append(TICK_S * sum(1 for t in finger_ticks if a < t <= b))
         least.append(sum(minimum_time(mv[2], MAX_SPEED, MAX_ACCEL) for mv in inside))
         # from the end of one move to the sending of the next: grips, checks, goal round trips
         idle.append(sum(max(0.0, n[0] - (m[0] + m[1]))
@@ -162,6 +177,11 @@ def run() -> dict:
         "overhead_s": round(s_per - motion_s, 3),
         "moves_per_experiment": round(len(moves) / max(len(gaps), 1), 2),
         "between_moves_s": round(statistics.median(idle), 3),
+        # the fingers move while the arm stands (motor 6 holds in every spline row)
+        "finger_motion_s": round(statistics.median(fingers), 3),
+        # per experiment: its time beyond the arm's and the fingers' motion
+        "beyond_motion_s": round(statistics.median(
+            g - mo - f for g, mo, f in zip(gaps, motion, fingers, strict=True)), 3),
         "targets": TARGETS,
     }
 

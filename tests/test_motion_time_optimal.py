@@ -131,3 +131,33 @@ def test_a_pick_and_place_moves_within_one_and_a_half_times_the_least_time(req):
     again = pp.PickPlacePlanner().plan(req, m.PARK_POSE)  # deterministic
     assert [(s.times, s.points, s.velocities) for s in again] == \
         [(s.times, s.points, s.velocities) for s in segments]
+
+
+class _CountingPlanner(pp.PickPlacePlanner):
+    """The planner, counting its calls of `timed`."""
+
+    calls = 0
+
+    def timed(self, start, points):
+        self.calls += 1
+        return super().timed(start, points)
+
+
+@settings(max_examples=25, deadline=None)
+@given(reachable_requests())
+def test_each_planned_move_is_timed_once_on_its_own_waypoints(req):
+    """The plan times each trajectory it runs once, merged moves included, and no move it does
+    not run; each is what `timed` makes of its waypoints from where it starts."""
+    if req is None:
+        return
+    planner = _CountingPlanner()
+    try:
+        segs = planner.plan(req, m.PARK_POSE)
+    except pp.PlanError:
+        return
+    moves = [s for s in segs if s.kind == "arm"]
+    assert planner.calls == len(moves)
+    assert any(s.also for s in moves)  # approach runs into descend, retreat into park
+    for s in moves:
+        assert (s.points, s.times, s.velocities) == PLANNER.timed(s.start, s.waypoints)
+        assert s.points and np.allclose(s.points[-1], s.waypoints[-1], atol=1e-3)

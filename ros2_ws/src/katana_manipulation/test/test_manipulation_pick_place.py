@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 import pytest
@@ -204,3 +205,57 @@ def test_timing_that_does_not_settle_stops_at_every_point(monkeypatch):
     assert np.allclose(speed, 1.5 * d / h[:, None]) and np.allclose(accel, 6 * d / h[:, None]**2)
     assert np.all(speed <= MAX_SPEED * planner.p.speed_fraction + 1e-9)
     assert np.all(accel <= ACCEL * planner.p.accel_fraction + 1e-9)
+
+
+class _SignallingPlanner(pp.PickPlacePlanner):
+    """The planner, saying when `plan` has started; it plans only once a grip has started (or
+    a bounded wait ran out), and records which."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.planning = threading.Event()
+        self.gripping = threading.Event()
+        self.waited_for_grip: list[bool] = []
+
+    def plan(self, req, current):
+        self.planning.set()
+        self.waited_for_grip.append(self.gripping.wait(5.0))
+        return super().plan(req, current)
+
+
+class OverlapPort(JammedRelease):
+    """Records, for each grip, whether the plan had started before the grip returned (it waits
+    a bounded time for it to)."""
+
+    def __init__(self, planner: _SignallingPlanner) -> None:
+        super().__init__(jammed_opens=0)
+        self.planner = planner
+        self.planned_during: list[bool] = []
+
+    def grip(self, position, effort):
+        self.planner.gripping.set()
+        self.planned_during.append(self.planner.planning.wait(5.0))
+        return super().grip(position, effort)
+
+
+def test_the_fingers_open_while_the_moves_are_planned():
+    """The first grip (to the pregrasp opening) runs while `plan` runs, not after it; the plan
+    and the port calls are those of planning first (the same segments, once each)."""
+    planner = _SignallingPlanner()
+    port = OverlapPort(planner)
+    res = pp.execute_pick_place(REQ, port, planner)
+    assert res.success, res.message
+    assert port.planned_during[0] and planner.waited_for_grip == [True]
+    segs = pp.PickPlacePlanner().plan(REQ, m.PARK_POSE)
+    assert segs[0].kind == "grip" and segs[0].phase == "approach"
+    assert f"grip {segs[0].position:.3f}" == port.calls[0]
+    expected = ["move" if s.kind == "arm" else f"grip {s.position:.3f}"
+                for s in segs if s.kind in ("arm", "grip")]
+    assert port.calls == expected
+
+
+def test_a_goal_out_of_reach_moves_nothing():
+    port = JammedRelease(jammed_opens=0)
+    far = pp.PickPlaceRequest((0.9, 0.0, 0.015), 0.0, (0.04, 0.04, 0.03), (0.2, 0.1, 0.015), 0.0)
+    res = pp.execute_pick_place(far, port, pp.PickPlacePlanner())
+    assert res.code == pp.PICK_UNREACHABLE and port.calls == []

@@ -14,6 +14,7 @@ block's width missed it; fingers that close further while carrying lost it.
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -63,7 +64,9 @@ ProgressFn = Callable[[str, float], None]
 def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlacePlanner,
                        feedback: ProgressFn | None = None,
                        cancelled: Callable[[], bool] | None = None) -> PickPlaceResult:
-    """Plan, then run the segments through the port; never raises for arm trouble."""
+    """Plan, then run the segments through the port; never raises for arm trouble. The
+    fingers open to the pregrasp opening (every plan's first segment) while the arm's moves
+    are planned; the arm moves only once the whole plan is made and checked."""
     feedback = feedback or (lambda phase, progress: None)
     cancelled = cancelled or (lambda: False)
     joints = port.joint_positions()
@@ -71,9 +74,29 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
         return PickPlaceResult(False, TIMEOUT, "no joint_states received: is the arm running?")
     current = planning_start([joints[n] for n in m.ARM_JOINTS], getattr(port, "commanded", None))
     try:
-        segments = planner.plan(req, current)
+        opening = planner.pregrasp(req)
     except PlanError as exc:
         return PickPlaceResult(False, exc.code, str(exc))
+    # Every plan opens the fingers first: they move while the arm's moves are planned.
+    planning = _Planning(planner, req, current)
+    g = None
+    if not cancelled():
+        feedback("approach", PHASES.index("approach") / len(PHASES))
+        g = port.grip(opening, planner.p.grip_effort)
+    try:
+        segments = planning.result()
+    except PlanError as exc:  # the fingers may have opened, in the air: nothing else moved
+        return PickPlaceResult(False, exc.code, str(exc))
+    if g is None:
+        _recover(port, planner, False)
+        return PickPlaceResult(False, ABORTED, "canceled", "approach")
+    if not g.ok:
+        code = TIMEOUT if g.timed_out else ARM_DID_NOT_REACH
+        _recover(port, planner, False)
+        return PickPlaceResult(False, code, f"approach: gripper: {g.message}", "approach")
+    first = segments[0]
+    if first.kind == "grip" and first.phase == "approach" and first.position == opening:
+        segments = segments[1:]
     grip_at = released_at = math.nan
     holding = False
     for seg in segments:
@@ -134,6 +157,34 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
                     "the block slipped out", seg.phase)
     feedback("park", 1.0)
     return PickPlaceResult(True, SUCCESS, "placed", "park")
+
+
+class _Planning:
+    """`planner.plan(req, current)` on a thread of its own; `result()` waits for it and returns
+    the segments or raises its PlanError. Planning reads only its arguments and the planner's
+    settings, so the plan is the same as one made before the fingers moved."""
+
+    def __init__(self, planner: PickPlacePlanner, req: PickPlaceRequest,
+                 current: Sequence[float]) -> None:
+        self._out: list[Segment] | None = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, args=(planner, req, current),
+                                        name="pick_place_planning", daemon=True)
+        self._thread.start()
+
+    def _run(self, planner: PickPlacePlanner, req: PickPlaceRequest,
+             current: Sequence[float]) -> None:
+        try:
+            self._out = planner.plan(req, current)
+        except BaseException as exc:  # handed to the caller by result()
+            self._error = exc
+
+    def result(self) -> list[Segment]:
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        assert self._out is not None
+        return self._out
 
 
 #: the arm holds within this of where it was last sent (rad) for that pose to count as "here"

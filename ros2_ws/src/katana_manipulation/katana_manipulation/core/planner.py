@@ -98,6 +98,18 @@ class _Columns:
     release: float  # ... and to release with
 
 
+def _distinct(start: Sequence[float], points: Sequence) -> list[np.ndarray]:
+    """The knots of a move (what `timed` times): `start`, then each point that moves some
+    joint by 1e-3 rad or more from the knot before it (a point closer is no move worth a
+    segment)."""
+    q = [np.asarray(start, float)]
+    for pt in points:
+        pt = np.asarray(pt, float)
+        if np.max(np.abs(pt - q[-1])) >= 1e-3:
+            q.append(pt)
+    return q
+
+
 class PickPlacePlanner:
     """Plans with its `PickPlaceParams`; the reach it checks goals against (core.reach) is
     computed with the same settings (`params.geometry`), not with the defaults."""
@@ -125,11 +137,7 @@ class PickPlacePlanner:
         over h peaks at 1.5 d / h and 6 d / h^2."""
         vmax = MAX_SPEED * self.p.speed_fraction
         amax = MAX_ACCEL * self.p.accel_fraction
-        q = [np.asarray(start, float)]
-        for pt in points:
-            pt = np.asarray(pt, float)
-            if np.max(np.abs(pt - q[-1])) >= 1e-3:  # else no move worth a segment
-                q.append(pt)
+        q = _distinct(start, points)
         if len(q) == 1:
             return [], [], []
         qs, v_opt, ticks = self._optimal_knots(np.array(q), vmax, amax)
@@ -329,6 +337,17 @@ class PickPlacePlanner:
         return self._merged(self._sequence(current, ends, columns,
                                            (t_here, t_pick, t_place, t_park), park))
 
+    def pregrasp(self, req: PickPlaceRequest) -> float:
+        """The finger angle `plan` opens to first (its first segment), from the goal alone:
+        the gripper can move there while the rest is planned. Raises PlanError as `plan`
+        does for a malformed goal or a pick or place out of reach."""
+        self._checked(req)
+        return self._pregrasp(self._ends(req).grip_width)
+
+    def _pregrasp(self, grip_width: float) -> float:
+        return min(m.GRIPPER_OPEN,
+                   m.finger_angle_for_opening(grip_width + self.p.pregrasp_margin))
+
     def _checked(self, req: PickPlaceRequest) -> float:
         """Refuse a malformed goal or one outside the reach; the block's height."""
         vals = list(req.pick) + [req.pick_yaw] + list(req.block_size) + list(req.place) + [
@@ -401,8 +420,7 @@ class PickPlacePlanner:
         """Columns above the pick and the place: climbed before heading for the transit pose,
         to where the pads (empty) or the held block clear a stack of clear_stack_blocks."""
         p = self.p
-        pregrasp = min(m.GRIPPER_OPEN,
-                       m.finger_angle_for_opening(ends.grip_width + p.pregrasp_margin))
+        pregrasp = self._pregrasp(ends.grip_width)
         stacks_top = p.clear_stack_blocks * sz + p.clearance
         pad_below_tool = m.FINGER_PAD_LENGTH / 2
         held_below_tool = p.grasp_offset + sz / 2
@@ -434,11 +452,9 @@ class PickPlacePlanner:
         segs: list[Segment] = []
 
         def arm(phase: str, start: np.ndarray, pts: list[np.ndarray]) -> np.ndarray:
-            points, times, vels = self.timed(start, pts)
-            if points:
-                segs.append(Segment(phase, "arm", points, times, vels, start=list(start),
-                                    waypoints=list(pts)))
-            return pts[-1]
+            if len(_distinct(start, pts)) > 1:  # a move (`timed` gives it points): timed
+                segs.append(Segment(phase, "arm", start=list(start), waypoints=list(pts)))
+            return pts[-1]  # once, in _merged, with the moves it runs into
 
         q, approach_pts = current, []
         low = self.kin.tool_position(current)[2] < self.p.transit_height - 0.02
@@ -477,17 +493,21 @@ class PickPlacePlanner:
 
     def _merged(self, segs: list[Segment]) -> list[Segment]:
         """Run consecutive arm moves as one trajectory: one goal instead of two, and no stop
-        between them (approach into descend, retreat into park), on the same waypoints."""
+        between them (approach into descend, retreat into park), on the same waypoints. Each
+        trajectory is timed here, once: timing the moves before merging them was most of the
+        planning time of a pick-and-place, spent on timings nobody ran."""
         out: list[Segment] = []
         for seg in segs:
             prev = out[-1] if out else None
             if seg.kind == "arm" and prev is not None and prev.kind == "arm":
-                pts = prev.waypoints + seg.waypoints
-                points, times, vels = self.timed(prev.start, pts)
-                out[-1] = Segment(prev.phase, "arm", points, times, vels, start=prev.start,
-                                  waypoints=pts, also=(*prev.also, seg.phase))
+                out[-1] = Segment(prev.phase, "arm", start=prev.start,
+                                  waypoints=prev.waypoints + seg.waypoints,
+                                  also=(*prev.also, seg.phase))
             else:
                 out.append(seg)
+        for seg in out:
+            if seg.kind == "arm":
+                seg.points, seg.times, seg.velocities = self.timed(seg.start, seg.waypoints)
         return out
 
     def placement_reachable(self, place: Sequence[float], place_yaw: float = 0.0,

@@ -221,6 +221,13 @@ def bench_loop_hardware(data: Json) -> str:
                f"{num(get(data, 'moves_per_experiment'), 1)} arm moves per experiment, "
                f"{num(get(data, 'between_moves_s'), 2)} s (median) from the end of one to the "
                "sending of the next within an experiment.")
+    fingers, beyond = get(data, "finger_motion_s"), get(data, "beyond_motion_s")
+    if finite(fingers) and finite(beyond):
+        out[-1] += (f" The fingers moved {num(fingers, 2)} s per experiment (median; the arm "
+                    "stands meanwhile: motor 6 holds in every spline row), and an experiment "
+                    f"took {num(beyond, 2)} s (median) beyond the arm's and the fingers' motion "
+                    "(planning, goal round trips, the driver's end-of-move detection, "
+                    "perception and learning).")
     return "\n".join(out)
 
 
