@@ -14,8 +14,8 @@ block's width missed it; fingers that close further while carrying lost it.
 from __future__ import annotations
 
 import math
-import threading
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from katana_description import models as m
@@ -77,16 +77,19 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
         opening = planner.pregrasp(req)
     except PlanError as exc:
         return PickPlaceResult(False, exc.code, str(exc))
-    # Every plan opens the fingers first: they move while the arm's moves are planned.
-    planning = _Planning(planner, req, current)
-    g = None
-    if not cancelled():
-        feedback("approach", PHASES.index("approach") / len(PHASES))
-        g = port.grip(opening, planner.p.grip_effort)
-    try:
-        segments = planning.result()
-    except PlanError as exc:  # the fingers may have opened, in the air: nothing else moved
-        return PickPlaceResult(False, exc.code, str(exc))
+    # Every plan opens the fingers first: they move while the arm's moves are planned, on a
+    # thread of its own (planning reads only its arguments and the planner's settings, so the
+    # plan is the one made before the fingers moved).
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="pick_place_planning") as pool:
+        planning = pool.submit(planner.plan, req, current)
+        g = None
+        if not cancelled():
+            feedback("approach", PHASES.index("approach") / len(PHASES))
+            g = port.grip(opening, planner.p.grip_effort)
+        try:
+            segments = planning.result()
+        except PlanError as exc:  # the fingers may have opened, in the air: nothing else moved
+            return PickPlaceResult(False, exc.code, str(exc))
     if g is None:
         _recover(port, planner, False)
         return PickPlaceResult(False, ABORTED, "canceled", "approach")
@@ -157,34 +160,6 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
                     "the block slipped out", seg.phase)
     feedback("park", 1.0)
     return PickPlaceResult(True, SUCCESS, "placed", "park")
-
-
-class _Planning:
-    """`planner.plan(req, current)` on a thread of its own; `result()` waits for it and returns
-    the segments or raises its PlanError. Planning reads only its arguments and the planner's
-    settings, so the plan is the same as one made before the fingers moved."""
-
-    def __init__(self, planner: PickPlacePlanner, req: PickPlaceRequest,
-                 current: Sequence[float]) -> None:
-        self._out: list[Segment] | None = None
-        self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._run, args=(planner, req, current),
-                                        name="pick_place_planning", daemon=True)
-        self._thread.start()
-
-    def _run(self, planner: PickPlacePlanner, req: PickPlaceRequest,
-             current: Sequence[float]) -> None:
-        try:
-            self._out = planner.plan(req, current)
-        except BaseException as exc:  # handed to the caller by result()
-            self._error = exc
-
-    def result(self) -> list[Segment]:
-        self._thread.join()
-        if self._error is not None:
-            raise self._error
-        assert self._out is not None
-        return self._out
 
 
 #: the arm holds within this of where it was last sent (rad) for that pose to count as "here"
