@@ -141,6 +141,10 @@ class TruthMeasurer:
         self.stack = support
         place = instance.placement.position
         free = self._free_blocks(self.stack)
+        if not free:  # the rest lie on their side or out of reach: another scatter
+            self._skip("no_free_block")
+            self.last_skip = "no_free_block"
+            return None
         block = max(free, key=lambda b: math.hypot(b.pose.position.x - place.x,
                                                    b.pose.position.y - place.y))
         before = true_blocks(self.client.latest_truth())
