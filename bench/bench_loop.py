@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import bisect
 import json
+import os
 import statistics
 import tempfile
 import threading
@@ -29,6 +30,10 @@ from katana_perception.core.fovea import FoveaScene
 from katana_perception.core.judge import Judge
 from katana_perception.core.segmentation import Segmenter
 from katana_sim.core.physics import PhysicsSim
+
+# the graph runs in this process: it discovers nothing outside it, so that another graph on
+# the machine (a second bench, a demo) cannot answer its topics and services
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
 
 EXPERIMENTS = 31  # 30 gaps between consecutive logged experiments
 TARGETS = {"s_per_experiment": 1.0, "overhead_ratio": 1.3, "dropped_fraction": 0.1}
