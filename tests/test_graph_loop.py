@@ -139,15 +139,21 @@ def _late(cls: type, name: str, seconds: float, monkeypatch) -> None:
     monkeypatch.setattr(cls, name, late)
 
 
-def _published_late(seconds: float, monkeypatch) -> None:
+def _published_late(seconds: float, monkeypatch) -> list[threading.Timer]:
     """The curiosity node's experience goes out `seconds` after the loop moved on: the memory
-    goes on folding images in meanwhile, as a slow link or a loaded machine would have it."""
+    goes on folding images in meanwhile, as a slow link or a loaded machine would have it.
+    Returns the timers, to be joined before the graph closes (the last one fires after the
+    loop has ended)."""
     original = CuriosityNode._publish_experiment
+    timers: list[threading.Timer] = []
 
     def late(self, record, step):
-        threading.Timer(seconds, original, (self, record, step)).start()
+        timer = threading.Timer(seconds, original, (self, record, step))
+        timers.append(timer)
+        timer.start()
 
     monkeypatch.setattr(CuriosityNode, "_publish_experiment", late)
+    return timers
 
 
 def test_two_fast_sim_runs_with_one_seed_write_the_same_log(tmp_path, monkeypatch):
@@ -158,13 +164,16 @@ def test_two_fast_sim_runs_with_one_seed_write_the_same_log(tmp_path, monkeypatc
     frames are segmented on the levels from before the experience: only the ordering (the
     memory's experience numbering, not a time margin) keeps the runs together."""
     logs = []
+    late_publishes: list[threading.Timer] = []
     for run in ("first", "second"):
         if run == "second":
-            _published_late(0.4, monkeypatch)
+            late_publishes = _published_late(0.4, monkeypatch)
             _late(PerceptionNode, "on_memory_blocks", 0.12, monkeypatch)
         with InProcessGraph() as g:
             learner, _, _, _ = run_loop(g, tmp_path / run, experiments=5, seed=3)
             g.wait_for(learner.finished.is_set, timeout=250.0)
+            for timer in late_publishes:  # published into a live graph, not a closed one
+                timer.join()
         logs.append([{k: v for k, v in r.items() if k not in TIMES}
                      for r in log_records(tmp_path / run)])
     assert len(logs[0]) == 5
