@@ -35,6 +35,7 @@ from .segmentation import wrap_quarter
 
 N_POINTS = 5
 N_ACTIONS = N_POINTS + 1
+ALL_ACTIONS = frozenset(range(1, N_ACTIONS + 1))
 _SHIFT = 4
 _NO_BITS = (False,) * N_POINTS
 _BITS = tuple(tuple(bool(code >> i & 1) for i in range(N_POINTS)) for code in range(1 << N_POINTS))
@@ -405,10 +406,8 @@ class FoveaScene:
                 return inst
         return None
 
-    def _stack_instances(self, st: _Stack, step: float, want: frozenset[int] | None = None):
-        """The first location of each distinct action around `st` (of the actions in `want`
-        only, when given), in scan order."""
-        wanted = frozenset(range(1, N_ACTIONS + 1)) if want is None else want
+    def _stack_instances(self, st: _Stack, step: float, want: frozenset[int] = ALL_ACTIONS):
+        """The first location of each distinct action of `want` around `st`, in scan order."""
         seen: set[int] = set()
         for u, v, ang in self._around(st, step):
             if not self._in_image(u, v):
@@ -417,14 +416,14 @@ class FoveaScene:
             if under is not st:
                 continue
             a = action_of(bits)
-            if a in seen or a not in wanted:
+            if a in seen or a not in want:
                 continue
             inst = self._instance(state, bits, u, v, ang, st)
             if inst is None:
                 continue
             seen.add(a)
             yield inst
-            if len(seen) == len(wanted):
+            if len(seen) == len(want):
                 return
 
     def observe(self, max_height: int | None = None) -> list[Instance]:
@@ -446,11 +445,11 @@ class FoveaScene:
         then the fine grid for the actions the grid missed. An action only the fine grid
         reaches (on a stack, the sliver where exactly one corner leaves the turned top faces'
         intersection) is one the arm can make, so it is offered; otherwise a plan towards it
-        would build stacks whose offer never shows it. On a single block nothing is missed
-        that the fine grid could add but the all-but-one-corner action, which an aligned face
-        never realises (`feasible_actions`), so a stack of one gets the grid only."""
+        would build stacks whose offer never shows it. A single block gets the grid only: its
+        face, aligned with the fovea, never realises that action (`feasible_actions`), and a
+        search for it would scan the whole fine grid around every loose block."""
         found = list(self._stack_instances(st, self.params.grid_step_px))
-        missing = frozenset(range(1, N_ACTIONS + 1)) - {inst.action for inst in found}
+        missing = ALL_ACTIONS - {inst.action for inst in found}
         if st.height > 1 and missing and self.params.fine_step_px < self.params.grid_step_px:
             found.extend(self._stack_instances(st, self.params.fine_step_px, want=missing))
         return found
