@@ -51,6 +51,7 @@ class Meter:
         self._local = threading.local()
         self._lock = threading.Lock()
         self._undo: list[tuple[type, str, object]] = []
+        self.worlds: list[PhysicsSim] = []  # every world made while the meter is on
 
     def wrap(self, cls: type, name: str, kind: str) -> None:
         original = getattr(cls, name)
@@ -74,6 +75,18 @@ class Meter:
         setattr(cls, name, timed)
         self._undo.append((cls, name, original))
 
+    def track_worlds(self) -> None:
+        """Keep every PhysicsSim made from now on (their step counters)."""
+        original = PhysicsSim.__init__
+        meter = self
+
+        def init(world, *args, **kwargs):
+            original(world, *args, **kwargs)
+            meter.worlds.append(world)
+
+        PhysicsSim.__init__ = init
+        self._undo.append((PhysicsSim, "__init__", original))
+
     def restore(self) -> None:
         for cls, name, original in reversed(self._undo):
             setattr(cls, name, original)
@@ -81,6 +94,7 @@ class Meter:
 
 
 def _instrument(meter: Meter) -> None:
+    meter.track_worlds()
     meter.wrap(PhysicsSim, "step", "physics")
     meter.wrap(PhysicsSim, "_raw_render", "render")  # images drawn (a still scene's are not)
     meter.wrap(Segmenter, "segment", "segment")
@@ -185,6 +199,12 @@ def run() -> dict:
         "experiment_floor_two_images_s": _median(_two_images(floors, renders, segments)),
         "floor_median_s": {k: _median([f.get(k, 0.0) for f in floors]) for k in KINDS},
         "overhead_ratio": round(s_per / floor, 2) if s_per and floor else None,
+        # over the whole run (its start-up included): steps made by the physics engine, and
+        # steps the arm made along its plan through free space without it
+        "physics_steps_per_experiment": round(
+            sum(w.physics_steps for w in meter.worlds) / len(records), 1),
+        "kinematic_steps_per_experiment": round(
+            sum(w.kinematic_steps for w in meter.worlds) / len(records), 1),
         "renders_per_experiment": _median([float(n) for n in renders]),
         "segmentations_per_experiment": _median([float(n) for n in segments]),
         "camera_rate_hz": camera_rate_hz,

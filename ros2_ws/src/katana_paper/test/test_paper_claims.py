@@ -250,8 +250,12 @@ def test_the_section_33_measures_of_hand_built_logs() -> None:
     assert robot.uncertain_pairs(truth, (0.6, 0.9)) == set()
     log = [Rec(0, 1, 1), Rec(1, 3, 1), Rec(0, 1, 1, "plan"), Rec(1, 2, 1),
            Rec(1, 2, -1), Rec(0, 1, 1, "plan"), Rec(1, 2, 1, "plan"), Rec(1, 2, 1)]
-    assert robot.share_on(log, pairs) == pytest.approx(4 / 8)
-    assert robot.shift_towards(log, pairs) == pytest.approx(3 / 4 - 1 / 4)
+    # exploring at height 1 (the uncertain pair's; the planned a2 left out): a3, a2, a2, a2
+    assert robot.share_on(log, pairs) == pytest.approx(3 / 4)
+    assert robot.shift_towards(log, pairs) == pytest.approx(2 / 2 - 1 / 2)
+    assert math.isnan(robot.share_on([Rec(1, 2, 1, "plan")], pairs))
+    assert robot.share_on([Rec(1, 2, 1, "plan"), Rec(1, 2, 1)], pairs) == 1.0
+    assert math.isnan(robot.share_on([Rec(0, 1, 1)], pairs))
     # direct: height 0 at [0] (median 0), height 1 at [1, 3, 4, 7] (median 3.5)
     assert robot.stage_order(log) == pytest.approx(1.0)
     # planned: height 0 at [2, 5] (3.5), height 1 at [6]: ((3.5 - 0) + (6 - 3.5)) / 2 / 8
@@ -300,7 +304,8 @@ def test_a_robot_folder_reads_back_every_run_it_holds(runs, stray) -> None:
 
 def _write_robot_folder(folder: Path, truth_path: Path, seeds: int = 3, n: int = 32) -> None:
     """q1 runs that try every pair of height 1 with the truth's outcomes; random runs that
-    stay on the table. A summary.json that names the truth."""
+    stay on the table but for a1 and a3 at height 1 (never the uncertain a2). A summary.json
+    that names the truth."""
     outcomes = {1: [-1], 2: [1, -1], 3: [1]}
     for seed in range(seeds):
         q1 = ExperienceLog(folder / "runs" / f"q1-s{seed}" / "experience.jsonl")
@@ -312,7 +317,11 @@ def _write_robot_folder(folder: Path, truth_path: Path, seeds: int = 3, n: int =
                 a = 1 + (i + seed) % 3
                 q1.append(ExperimentRecord(i, 1, a, outcomes[a][i % len(outcomes[a])],
                                            "query"))
-            rnd.append(ExperimentRecord(i, 0, 1, 1, "random"))
+            if i % 8 == 5:
+                a = 1 + 2 * ((i // 8 + seed) % 2)
+                rnd.append(ExperimentRecord(i, 1, a, outcomes[a][0], "random"))
+            else:
+                rnd.append(ExperimentRecord(i, 0, 1, 1, "random"))
     (folder / "summary.json").write_text(json.dumps({
         "experiments": n, "seeds": list(range(seeds)), "truth": str(truth_path),
         "strategies": {}}))

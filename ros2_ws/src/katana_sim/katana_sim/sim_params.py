@@ -27,6 +27,10 @@ PARAMS: tuple[Param, ...] = SCENE_PARAMS + (
     Param("block_mass", m.BLOCK_MASS, "Block mass, kg.", 0.001, 0.4),
     Param("seed", 0, "Seed of the first scatter and of the reset sequence.", 0, 2**31 - 1),
     Param("physics_rate", 240.0, "Physics steps per simulated second, Hz.", 60.0, 5000.0),
+    Param("kinematic_free_space", SimConfig.kinematic_free_space, "Move the arm, and a block "
+          "held still in its grip, along the plan without physics steps while both are 3 cm "
+          "clear of every other block and of the table, the fingers still and every other block "
+          "at rest; false: physics steps throughout."),
     Param("real_time_factor", 1.0, "Simulated seconds per wall second; 0: fast lock-step mode "
           "(physics runs only inside the motions it serves, deterministic).", 0.0, 100.0),
     Param("camera_focal_px", 750.0, "Focal length fx = fy, px.", 10.0, 10000.0),
@@ -76,6 +80,7 @@ def sim_config(values: Mapping) -> SimConfig:
         block_mass=values["block_mass"],
         seed=values["seed"],
         physics_rate=values["physics_rate"],
+        kinematic_free_space=values["kinematic_free_space"],
         camera=CameraModel(
             width=values["image_width"], height=values["image_height"],
             focal_px=values["camera_focal_px"], position=tuple(values["camera_position"]),

@@ -117,20 +117,32 @@ def uncertain_pairs(truth: TruthTable, band: tuple[float, float] = UNCERTAIN
             if np.isfinite(p[h, a]) and band[0] < p[h, a] < band[1]}
 
 
+def at_heights_of(records: Sequence, pairs: set[tuple[int, int]]) -> list:
+    """The exploring placements (every one but a plan's) made at the heights `pairs` lie at."""
+    heights = {h for h, _ in pairs}
+    return [r for r in records if int(r.state) in heights and r.mode != "plan"]
+
+
 def share_on(records: Sequence, pairs: set[tuple[int, int]]) -> float:
-    """Share of the placements made on `pairs`; NaN without placements."""
-    if not records:
+    """Share of `pairs` among the exploring placements made at their heights (Q1's queries,
+    all of Random's). The paper's attention is where exploration goes among the actions of one
+    height ("it now focuses on exploring height two"; Figure 6: the uncertain features "stay
+    interesting longer"): which heights a strategy places at is the stages' claim, and a plan's
+    placement serves the plan, not the exploration. NaN without such placements."""
+    at = at_heights_of(records, pairs)
+    if not at:
         return math.nan
-    return float(np.mean([(int(r.state), int(r.action)) in pairs for r in records]))
+    return float(np.mean([(int(r.state), int(r.action)) in pairs for r in at]))
 
 
 def shift_towards(records: Sequence, pairs: set[tuple[int, int]]) -> float:
-    """Share of the second half's placements on `pairs` minus the first half's; NaN with
-    fewer than two placements."""
-    if len(records) < 2:
+    """Of the exploring placements at the heights of `pairs`: the second half's share on
+    `pairs` minus the first half's; NaN with fewer than two."""
+    at = at_heights_of(records, pairs)
+    if len(at) < 2:
         return math.nan
-    half = len(records) // 2
-    return share_on(records[half:], pairs) - share_on(records[:half], pairs)
+    half = len(at) // 2
+    return share_on(at[half:], pairs) - share_on(at[:half], pairs)
 
 
 def _indices(records: Sequence, mode: str) -> dict[int, list[int]]:
@@ -209,14 +221,16 @@ def section_33(values: Sequence[SeedValues], truth: TruthTable, pairs: set[tuple
     pair_text = ", ".join(f"({h}, a{a})" for h, a in sorted(pairs))
     if pairs:
         claim(ClaimSpec("attention-on-uncertain-pairs", f"{S33}, Figures 10-12", ATTENTION,
-                        f"the share of Q1's placements on the truth's uncertain pairs "
-                        f"({band[0]:g} < P(stays) < {band[1]:g}: {pair_text}) minus Random's",
+                        f"of the exploring placements (Q1's queries, all of Random's) at the "
+                        f"heights of the truth's uncertain pairs ({band[0]:g} < P(stays) < "
+                        f"{band[1]:g}: {pair_text}), the share on those pairs: Q1's minus "
+                        f"Random's",
                         stats.Claimed("greater")),
               ("q1", "random"), lambda v: v.uncertain_share, stats.difference)
         claim(ClaimSpec("attention-shifts-to-uncertain-pairs", f"{S33}, Figures 10-12",
                         ATTENTION,
-                        "the share of Q1's placements on the uncertain pairs in the second "
-                        "half of its run minus that in the first half, per seed",
+                        "of Q1's queries at the heights of the uncertain pairs, the share on "
+                        "those pairs in the second half minus that in the first, per seed",
                         stats.Claimed("greater")),
               ("q1",), lambda v: v.uncertain_shift, stats.mean)
     else:

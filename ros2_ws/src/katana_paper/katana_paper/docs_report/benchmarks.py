@@ -190,6 +190,12 @@ def bench_loop(data: Json) -> str:
         f"{num(get(data, 'segmentations_per_experiment'), 1)} segmentations per experiment. "
         f"Highest stack {get(data, 'highest_stack')}; heights explored "
         f"{get(data, 'heights_explored')}.")
+    physics_steps = get(data, "physics_steps_per_experiment")
+    free_steps = get(data, "kinematic_steps_per_experiment")
+    if finite(physics_steps) and finite(free_steps):
+        out[-1] += (f" {num(physics_steps, 0)} physics steps per experiment, and "
+                    f"{num(free_steps, 0)} steps the arm crossed free space without physics "
+                    "(the run's mean, its start-up included).")
     return "\n".join(out)
 
 
@@ -248,6 +254,11 @@ def bench_soak(data: Json) -> str:
          ratio(last.get("s_per_experiment"), first.get("s_per_experiment")),
          "at most " + f"{targets.get('last_over_first_s_per_experiment', float('nan')):g}x"
          if finite(targets.get("last_over_first_s_per_experiment")) else "-"),
+        ("overhead ratio, the last block (its seconds per experiment over its floor: the time "
+         "in physics, renders, segmentation, the judge and the fovea)",
+         num(last.get("overhead_ratio"), 2),
+         f"experiments {first.get('experiments', '?')}: {num(first.get('overhead_ratio'), 2)}",
+         ratio(last.get("overhead_ratio"), first.get("overhead_ratio")), "-"),
         ("resident memory of the process at the last block's end, MiB",
          num(last.get("rss_mib_at_end"), 1),
          f"at the first block's end: {num(first.get('rss_mib_at_end'), 1)}",
@@ -263,10 +274,11 @@ def bench_soak(data: Json) -> str:
          f"first block: {num(first.get('checkpoint_save_ms'))}",
          ratio(last.get("checkpoint_save_ms"), first.get("checkpoint_save_ms")), "-"),
     ]
-    per = table(("experiments", "s per experiment", "RSS MiB", "log append ms", "log bytes",
-                 "checkpoint ms", "checkpoint bytes"),
+    per = table(("experiments", "s per experiment", "floor s", "RSS MiB", "log append ms",
+                 "log bytes", "checkpoint ms", "checkpoint bytes"),
                 [(b.get("experiments"), num(b.get("s_per_experiment"), 2),
-                  num(b.get("rss_mib_at_end"), 1), num(b.get("log_append_ms")),
+                  num(b.get("floor_s"), 2), num(b.get("rss_mib_at_end"), 1),
+                  num(b.get("log_append_ms")),
                   num(b.get("log_append_bytes"), 0), num(b.get("checkpoint_save_ms")),
                   num(b.get("checkpoint_bytes"), 0)) for b in blocks])
     return "\n".join([table(SPEED_HEADER, rows), "", "Per block:", "", per])

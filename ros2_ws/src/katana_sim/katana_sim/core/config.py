@@ -44,6 +44,9 @@ class SimConfig:
     finger_friction: float = 1.5
     gripper_effort: float = 0.5  # N m, default finger motor torque
     arm_urdf: str = ""  # override of the arm's URDF file; empty: the model's own
+    # The arm moves along its plan without physics steps while it is clear of every block and
+    # of the table by FREE_SPACE_MARGIN_M and nothing else moves (physics.PhysicsSim.step).
+    kinematic_free_space: bool = True
 
     def validate(self) -> SimConfig:
         """Raise ConfigError naming the first invalid parameter; return self otherwise."""

@@ -21,7 +21,9 @@ Arm control: `start_trajectory(TrajectoryGoal)` and `start_gripper(position, eff
 handle whose `.outcome` says when the motion is done; stepping the world advances them. The
 motors are PyBullet position motors fed a target that moves within the joint speed limits, with
 torques far above what gravity needs (katana_description.models.SIM_MOTOR_TORQUE). Blocks are held
-by contact and friction only: nothing welds a block to the hand.
+by contact and friction only: nothing welds a block to the hand. Through free space
+(`SimConfig.kinematic_free_space`, on by default) the arm follows its plan without physics
+steps, and a block held still between both finger pads rides in its grip: `step()` says when.
 
 Ground truth (levels, visibility) is core.ground_truth's, from the block poses.
 """
@@ -49,6 +51,15 @@ from katana_sim.core.config import SimConfig
 from katana_sim.core.ground_truth import BlockState, block_states, yaw_of
 
 FINGER_PAD_LINKS = ("katana_r_finger_link", "katana_l_finger_link")
+#: a block slower than this, and turning slower than this, is at rest
+REST_SPEED_M_S = 2e-3
+REST_SPIN_RAD_S = 2e-2
+#: clearance (m) the arm keeps from every block and from the table top while it moves along its
+#: plan without physics steps (`PhysicsSim.step`)
+FREE_SPACE_MARGIN_M = 0.03
+#: a bound (m) on how far a point of the arm moves per radian of any joint: the Katana's
+#: longest lever, from the shoulder's axis to the fingertips, is about 0.6 m
+ARM_LEVER_M = 0.7
 
 
 class _Refused:
@@ -81,12 +92,19 @@ class PhysicsSim:
         self._steps = 0
         self._idle_s = 0.0
         self._cid = p.connect(p.DIRECT)
+        self._probe_cid: int | None = None  # the arm alone, for the free-space check
+        self.physics_steps = 0  # steps made by the physics engine
+        self.kinematic_steps = 0  # steps the arm moved along its plan without physics
+        # counts what can move the world but the arm's free moves: physics steps and teleports
+        self._changes = 0
+        self._horizon: tuple | None = None  # (trajectory, changes, last free step, held)
         self._tmp = tempfile.TemporaryDirectory(prefix="katana_sim_")
         self._rng = np.random.default_rng(self.cfg.seed)
         self._trajectory: ctl.TrajectoryFollower | None = None
         self._gripper: ctl.GripperController | None = None
         self._rendered: tuple[tuple, np.ndarray] | None = None  # (scene key, image)
         self.reset(self.cfg.seed)
+        self._build_probe()
 
     # ------------------------------------------------------------------ construction
     def _pb(self, fn, *args, **kwargs):
@@ -106,8 +124,9 @@ class PhysicsSim:
         self.table = self._pb(p.loadURDF, self._write("table.urdf", urdf_gen.table_urdf()),
                               useFixedBase=True)
         self._prepare_table_render()
-        arm_file = cfg.arm_urdf or str(urdf_path(f"katana_{m.get_model(cfg.model).name}.urdf"))
-        self.arm = self._pb(p.loadURDF, arm_file, (0, 0, 0), useFixedBase=True,
+        self._arm_file = cfg.arm_urdf or str(
+            urdf_path(f"katana_{m.get_model(cfg.model).name}.urdf"))
+        self.arm = self._pb(p.loadURDF, self._arm_file, (0, 0, 0), useFixedBase=True,
                             flags=p.URDF_USE_INERTIA_FROM_FILE)
         self.joint_index: dict[str, int] = {}
         self.link_index: dict[str, int] = {}
@@ -141,11 +160,24 @@ class PhysicsSim:
         self._targets = np.zeros(len(self._all_idx))
         self._target_vel = np.zeros(len(self._all_idx))
         self._finger_effort = cfg.gripper_effort
+        self._table_top_z = self._pb(p.getAABB, self.table, -1)[1][2]
+
+    def _build_probe(self) -> None:
+        """A second world holding only the arm, posed along a plan by the free-space check, so
+        that the check never touches the simulated arm's state. Links with a collision shape
+        that can move (the base is bolted to the table) are the ones checked."""
+        self._probe_cid = p.connect(p.DIRECT)
+        self._probe_arm = p.loadURDF(self._arm_file, (0, 0, 0), useFixedBase=True,
+                                     physicsClientId=self._probe_cid)
+        self._gripper_link = self.link_index["katana_gripper_link"]
+        self._probe_links = [i for i in range(self._pb(p.getNumJoints, self.arm))
+                             if self._pb(p.getCollisionShapeData, self.arm, i)]
 
     def close(self) -> None:
-        if self._cid is not None and p.isConnected(self._cid):
-            p.disconnect(self._cid)
-        self._cid = None
+        for cid in (self._cid, self._probe_cid):
+            if cid is not None and p.isConnected(cid):
+                p.disconnect(cid)
+        self._cid = self._probe_cid = None
         self._tmp.cleanup()
 
     def __del__(self) -> None:  # best effort; explicit close() is preferred
@@ -207,6 +239,7 @@ class PhysicsSim:
                        quaternion=None) -> None:
         """Teleport a block (centre position, metres) and stop it."""
         body = self.blocks[block_id]
+        self._changes += 1
         quat = quaternion if quaternion is not None else p.getQuaternionFromEuler((0, 0, yaw))
         self._pb(p.resetBasePositionAndOrientation, body, tuple(position), tuple(quat))
         self._pb(p.resetBaseVelocity, body, (0, 0, 0), (0, 0, 0))
@@ -223,12 +256,12 @@ class PhysicsSim:
         pos, quat = self._pb(p.getBasePositionAndOrientation, self.blocks[block_id])
         return np.array(pos), np.array(quat)
 
-    def blocks_at_rest(self, lin_tol: float = 2e-3, ang_tol: float = 2e-2) -> bool:
-        for body in self.blocks.values():
-            lin, ang = self._pb(p.getBaseVelocity, body)
-            if np.linalg.norm(lin) > lin_tol or np.linalg.norm(ang) > ang_tol:
-                return False
-        return True
+    def blocks_at_rest(self) -> bool:
+        return all(self._at_rest(body) for body in self.blocks.values())
+
+    def _at_rest(self, body: int) -> bool:
+        lin, ang = self._pb(p.getBaseVelocity, body)
+        return np.linalg.norm(lin) <= REST_SPEED_M_S and np.linalg.norm(ang) <= REST_SPIN_RAD_S
 
     def settle_motion(self, max_time: float = 2.0) -> None:
         """After a motion: step until every block is at rest (bounded by max_time simulated s).
@@ -263,6 +296,7 @@ class PhysicsSim:
     def set_arm_positions(self, arm_q, fingers: float | None = None) -> None:
         """Teleport the arm (five angles) and, if given, the fingers; the motors hold there."""
         q = list(arm_q)[:5]
+        self._changes += 1
         for idx, v in zip(self._arm_idx, q, strict=True):
             self._pb(p.resetJointState, self.arm, idx, v, 0.0)
         self._targets[:5] = q
@@ -367,7 +401,24 @@ class PhysicsSim:
 
     # ------------------------------------------------------------------ stepping
     def step(self, n: int = 1) -> None:
-        """Advance n physics steps, driving the motors from the active controllers."""
+        """Advance n physics steps, driving the motors from the active controllers.
+
+        While the arm moves through free space (`_free_steps`) the steps are made without
+        physics: the arm takes its planned state, where its motors track it to within their lag,
+        the block it holds rides in its grip, and nothing else could have moved."""
+        traj = self._trajectory
+        if traj is not None:
+            free, held = self._free_steps(traj, n)
+            if free:
+                q, v = traj.sample_many(
+                    np.array([(self._steps + free - traj.start_step) * self.dt]))
+                self._move_kinematic(free, q[0], v[0], held)
+                self._check_controllers(q[0])
+                n -= free
+        if n > 0:
+            self._step_physics(n)
+
+    def _step_physics(self, n: int) -> None:
         forces = list(self._forces)
         forces[5] = forces[6] = self._finger_effort
         check_every = max(1, int(round(0.01 / self.dt)))
@@ -389,9 +440,129 @@ class PhysicsSim:
                 velocityGains=kd, physicsClientId=cid)
             p.stepSimulation(physicsClientId=cid)
             self._steps += 1
+            self.physics_steps += 1
+            self._changes += 1
             if (traj is not None or grip is not None) and (k == n - 1 or k % check_every == 0):
                 # judged against the plan at the time reached (the step just made)
                 self._check_controllers(plan_q[k + 1] if traj is not None else None)
+
+    def _free_steps(self, traj, n: int) -> tuple[int, tuple]:
+        """How many of the next n steps the arm may make without physics, and the block it
+        carries as (body, pose in the gripper's frame), or () for an empty hand.
+
+        It may when the fingers are still, every block is at rest but one held still between
+        both finger pads, and the arm and the block it holds, where they are and posed at
+        samples of the plan close enough that no point of them moves more than
+        FREE_SPACE_MARGIN_M / 2 (plus one step's motion) between two, keep FREE_SPACE_MARGIN_M
+        from every other block and from the table top. Distances are those of axis-aligned
+        bounding boxes, which are never nearer than the shapes they hold: the check may miss a
+        free move, never admit one that comes near anything. What it admits holds up to the
+        horizon it found (nothing but the arm and its load moves meanwhile), unless something
+        is teleported or the fingers start."""
+        if not self.cfg.kinematic_free_space or self._gripper is not None:
+            return 0, ()
+        horizon = self._horizon
+        if (horizon is not None and horizon[0] is traj and horizon[1] == self._changes
+                and self._steps < horizon[2]):
+            return min(n, horizon[2] - self._steps), horizon[3]
+        self._horizon = None
+        held = self._held_block()
+        if held is None:
+            return 0, ()
+        others = [body for body in self.blocks.values() if not held or body != held[0]]
+        if not all(self._at_rest(body) for body in others):
+            return 0, ()
+        margin = FREE_SPACE_MARGIN_M
+        boxes = np.array([self._pb(p.getAABB, body, -1) for body in others]).reshape(-1, 2, 3)
+        lo, hi = boxes[:, 0] - margin, boxes[:, 1] + margin
+        if not self._clear(self._cid, self.arm, held, lo, hi):  # where the arm is now
+            return 0, ()
+        # the rest of the plan, its end included (the arm holds there once it is done)
+        start = self._steps - traj.start_step
+        rows_left = max(1, math.ceil(traj.duration / self.dt) - start)
+        plan_q, _ = traj.sample_many((start + np.arange(rows_left + 1)) * self.dt)
+        moved = np.abs(np.diff(plan_q, axis=0)).sum(axis=1) * ARM_LEVER_M
+        travelled = np.concatenate(([0.0], np.cumsum(moved)))
+        rows = np.unique(np.concatenate((
+            np.searchsorted(travelled, np.arange(0.0, travelled[-1], margin / 2)),
+            [rows_left])))
+        probe, arm = self._probe_cid, self._probe_arm
+        fingers = self.joint_state()[0][5:]  # still while the arm moves without physics
+        p.resetJointStatesMultiDof(arm, self._finger_idx, [[v] for v in fingers],
+                                   physicsClientId=probe)
+        last = 0  # every sample up to this row is clear
+        for row in rows:
+            p.resetJointStatesMultiDof(arm, self._arm_idx, [[v] for v in plan_q[row]],
+                                       physicsClientId=probe)
+            if not self._clear(probe, arm, held, lo, hi):
+                break
+            last = int(row)
+        else:
+            last = 1 << 62  # the end is clear too: free until the goal is judged
+        if last > 0:  # later calls find it without checking again while nothing else moves
+            self._horizon = (traj, self._changes, self._steps + last, held)
+        return min(n, last), held
+
+    def _held_block(self) -> tuple[int, tuple, tuple] | tuple[()] | None:
+        """The block held between both finger pads, moving with the gripper, as (body, pose
+        in the gripper's frame); () when no block touches the fingers; None when the hand
+        touches a block in another way (a push, a block slipping)."""
+        pads = [self.link_index[name] for name in FINGER_PAD_LINKS]
+        touched = [body for body in self.blocks.values()
+                   if self._pb(p.getContactPoints, self.arm, body)]
+        if not touched:
+            return ()
+        if len(touched) > 1:
+            return None
+        body = touched[0]
+        if not all(self._pb(p.getContactPoints, self.arm, body, pad) for pad in pads):
+            return None
+        state = self._pb(p.getLinkState, self.arm, self._gripper_link, computeLinkVelocity=1)
+        com, v_com, w = np.array(state[0]), np.array(state[6]), np.array(state[7])
+        pos, orn = self._pb(p.getBasePositionAndOrientation, body)
+        lin, ang = self._pb(p.getBaseVelocity, body)
+        riding = v_com + np.cross(w, np.array(pos) - com)  # the gripper's velocity there
+        if (np.linalg.norm(np.subtract(lin, riding)) > REST_SPEED_M_S
+                or np.linalg.norm(np.subtract(ang, w)) > REST_SPIN_RAD_S):
+            return None
+        inv_pos, inv_orn = p.invertTransform(state[4], state[5])
+        rel_pos, rel_orn = p.multiplyTransforms(inv_pos, inv_orn, pos, orn)
+        return body, rel_pos, rel_orn
+
+    def _clear(self, cid: int, arm: int, held, lo: np.ndarray, hi: np.ndarray) -> bool:
+        """The arm of client `cid` as posed, with the held block in its grip: every link's box
+        and the block's above the table top by the margin and outside every expanded block box
+        (lo, hi: (b, 3))."""
+        boxes = [p.getAABB(arm, i, physicsClientId=cid) for i in self._probe_links]
+        if held:
+            state = p.getLinkState(arm, self._gripper_link, physicsClientId=cid)
+            pos, orn = p.multiplyTransforms(state[4], state[5], held[1], held[2])
+            rot = np.abs(np.array(p.getMatrixFromQuaternion(orn)).reshape(3, 3))
+            half = rot @ (np.asarray(self.cfg.block_size) / 2)
+            boxes.append((np.asarray(pos) - half, np.asarray(pos) + half))
+        moving = np.array(boxes)
+        if moving[:, 0, 2].min() < self._table_top_z + FREE_SPACE_MARGIN_M:
+            return False
+        overlap = (np.all(moving[:, None, 0] < hi[None], axis=2)
+                   & np.all(moving[:, None, 1] > lo[None], axis=2))
+        return not overlap.any()
+
+    def _move_kinematic(self, n: int, q: np.ndarray, v: np.ndarray, held) -> None:
+        """n steps without physics: the arm takes its planned state (q, v) and the block it
+        holds keeps its place in the grip and rides with it; nothing else moves."""
+        self._pb(p.resetJointStatesMultiDof, self.arm, self._arm_idx, [[x] for x in q],
+                 [[x] for x in v])
+        self._targets[:5], self._target_vel[:5] = q, v
+        if held:
+            state = self._pb(p.getLinkState, self.arm, self._gripper_link,
+                             computeLinkVelocity=1, computeForwardKinematics=1)
+            pos, orn = p.multiplyTransforms(state[4], state[5], held[1], held[2])
+            w = np.array(state[7])
+            lin = np.array(state[6]) + np.cross(w, np.subtract(pos, state[0]))
+            self._pb(p.resetBasePositionAndOrientation, held[0], pos, orn)
+            self._pb(p.resetBaseVelocity, held[0], lin.tolist(), w.tolist())
+        self._steps += n
+        self.kinematic_steps += n
 
     def _check_controllers(self, desired: np.ndarray | None = None) -> None:
         pos, vel, _ = self.joint_state()

@@ -1,0 +1,134 @@
+"""The sim's free-space moves (katana_sim PhysicsSim, `kinematic_free_space`): the arm follows its
+plan without physics steps while it, and the block it holds, keep clear of everything else.
+
+Checked against their reference twin, the same motions stepped in physics throughout, and
+against PyBullet's exact distances (the check itself reasons on bounding boxes). Cross-package
+(the planner drives the sim through tests/physics_port.py), so it lives here."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pybullet as p
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+from katana_description import models as m
+from katana_manipulation.core import pick_place as pp
+from katana_manipulation.core.pick_place_types import SIM_MIN_SEGMENT_TIME_S, PickPlaceParams
+from katana_sim.core import PhysicsSim, SimConfig, TrajectoryGoal
+from katana_sim.core.physics import FREE_SPACE_MARGIN_M
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
+from physics_port import PhysicsPort  # noqa: E402
+
+PLANNER = pp.PickPlacePlanner(params=PickPlaceParams(min_segment_time=SIM_MIN_SEGMENT_TIME_S))
+
+
+@pytest.fixture(scope="module")
+def twins():
+    """The same world twice: free-space moves on (fast) and off (the reference)."""
+    fast = PhysicsSim(SimConfig(seed=0))
+    reference = PhysicsSim(SimConfig(seed=0, kinematic_free_space=False))
+    yield fast, reference
+    fast.close()
+    reference.close()
+
+
+def _stack_on_first_reachable(world, seed: int):
+    """Reset to `seed` and pick-and-place the first block the planner can put on another."""
+    truth = world.reset(seed)
+    start = [world.joint_positions()[n] for n in m.ARM_JOINTS]
+    for a in truth:
+        for b in truth:
+            if a.id == b.id:
+                continue
+            place = (b.position[0], b.position[1], b.position[2] + b.size[2])
+            req = pp.PickPlaceRequest(a.position, a.yaw, a.size, place, b.yaw)
+            try:
+                PLANNER.plan(req, start)
+            except pp.PlanError:
+                continue
+            steps = world._steps
+            res = pp.execute_pick_place(req, PhysicsPort(world), PLANNER)
+            world.settle(max_time=1.0, min_time=1.0)
+            return res, a.id, world._steps - steps
+    pytest.skip(f"no block of seed {seed} can be stacked")
+
+
+@pytest.mark.parametrize("seed", [1, 2, 5])
+def test_a_pick_and_place_ends_as_its_physics_twin_with_most_steps_free(twins, seed):
+    fast, reference = twins
+    kinematic_before = fast.kinematic_steps
+    res_fast, moved, steps_fast = _stack_on_first_reachable(fast, seed)
+    res_ref, moved_ref, steps_ref = _stack_on_first_reachable(reference, seed)
+    assert moved == moved_ref and res_fast.success == res_ref.success, (res_fast, res_ref)
+    assert res_fast.success, res_fast
+    fast_truth = {b.id: b for b in fast.ground_truth()}
+    ref_truth = {b.id: b for b in reference.ground_truth()}
+    for bid, ref in ref_truth.items():
+        got = fast_truth[bid]
+        assert got.level == ref.level and got.support == ref.support, bid
+        assert math.dist(got.position, ref.position) < 0.0015, (bid, got.position, ref.position)
+        assert abs(math.remainder(got.yaw - ref.yaw, math.pi / 2)) < 0.02, bid
+    arm_fast = [fast.joint_positions()[n] for n in m.ALL_JOINTS]
+    arm_ref = [reference.joint_positions()[n] for n in m.ALL_JOINTS]
+    assert np.allclose(arm_fast, arm_ref, atol=2e-3)
+    # the same simulated time, most of it without physics
+    assert abs(steps_fast - steps_ref) <= 0.05 * steps_ref
+    assert fast.kinematic_steps - kinematic_before > 0.55 * steps_fast
+
+
+def _distance(world, body: int) -> float:
+    """PyBullet's exact shortest distance from the moving arm links to `body` (capped at 1 m)."""
+    links = world._probe_links
+    found = [c[8] for c in p.getClosestPoints(world.arm, body, 1.0, physicsClientId=world._cid)
+             if c[3] in links]
+    return min(found, default=1.0)
+
+
+OUT_OF_THE_WAY = [(0.45, 0.30), (0.45, -0.30), (-0.30, 0.35)]
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(goal=st.tuples(*(st.floats(lo, hi) for lo, hi in
+                        (m.JOINT_LIMITS[n] for n in m.ARM_JOINTS))),
+       along=st.floats(0.2, 0.8), offset=st.tuples(st.floats(-0.05, 0.05), st.floats(-0.05, 0.05)),
+       tall=st.integers(1, 4), seed=st.integers(0, 1000))
+def test_a_step_made_without_physics_never_comes_near_a_block_or_the_table(goal, along, offset,
+                                                                           tall, seed):
+    """A tower of `tall` blocks stands near where the hand passes, `along` the way from the
+    park pose to `goal`; the arm sweeps there."""
+    world = PhysicsSim(SimConfig(seed=seed))
+    try:
+        start = np.array([world.joint_positions()[n] for n in m.ARM_JOINTS])
+        world.set_arm_positions(start + along * (np.asarray(goal) - start))
+        passing = world.tool_pose()[0]
+        world.set_arm_positions(start)
+        xy = (passing[0] + offset[0], passing[1] + offset[1])
+        assume(0.12 < math.hypot(*xy) < 0.6 and passing[2] > 0.0)
+        h = world.cfg.block_size[2]
+        ids = list(world.blocks)
+        for level, bid in enumerate(ids[:tall]):
+            world.set_block_pose(bid, (*xy, h * (level + 0.5)))
+        for bid, spare in zip(ids[tall:], OUT_OF_THE_WAY, strict=False):
+            world.set_block_pose(bid, (*spare, h / 2))
+        world.settle()
+        speeds = np.array([m.JOINT_MAX_SPEED[n] for n in m.ARM_JOINTS])
+        seconds = 1.6 * float(np.max(np.abs(np.subtract(goal, start)) / speeds)) + 0.1
+        handle = world.start_trajectory(TrajectoryGoal(list(m.ARM_JOINTS), [seconds], [goal]))
+        assume(not handle.outcome.done)  # refused by the arm contract
+        nearest = math.inf
+        while not handle.outcome.done and world.time < seconds + 3.0:
+            before = world.kinematic_steps
+            world.step(1)
+            if world.kinematic_steps > before:  # this pose was reached without physics
+                table = _distance(world, world.table)
+                nearest = min(nearest, table, *(_distance(world, b)
+                                                for b in world.blocks.values()))
+        assert nearest >= FREE_SPACE_MARGIN_M / 2
+    finally:
+        world.close()
