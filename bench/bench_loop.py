@@ -24,6 +24,7 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+import yaml
 from katana_bringup import demo
 from katana_bringup.run import default_params_files, load_params
 from katana_perception.core.fovea import FoveaScene
@@ -113,17 +114,23 @@ KINDS = ("physics", "render", "segment", "judge", "fovea")
 
 
 def demo_run(meter: Meter, experiments: int = EXPERIMENTS,
-             ros_args: tuple[str, ...] = ()) -> tuple[list[dict], dict, float]:
+             params: dict[str, dict] | None = None) -> tuple[list[dict], dict, float]:
     """katana-demo (seed 0) in this process with `meter` on: the logged records, the summary,
-    wall s."""
+    wall s. `params` ({node: {name: value}}) is handed over as a `--params` overlay file (a
+    `--ros-args -p` value would lose to the packaged files, as rclpy ranks them)."""
     _instrument(meter)
     try:
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(tmp) / "run"
+            overlay = []
+            if params:
+                path = Path(tmp) / "overlay.yaml"
+                path.write_text(yaml.safe_dump(
+                    {node: {"ros__parameters": values} for node, values in params.items()}))
+                overlay = ["--params", str(path)]
             start = time.perf_counter()
             code = demo.main(["--experiments", str(experiments), "--out", str(out),
-                              "--seed", "0", "--timeout", str(60 * experiments),
-                              *(("--ros-args", *ros_args) if ros_args else ())])
+                              "--seed", "0", "--timeout", str(60 * experiments), *overlay])
             wall = time.perf_counter() - start
             if code != 0:
                 raise RuntimeError(f"katana-demo exited with {code}")

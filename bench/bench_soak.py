@@ -106,7 +106,7 @@ def run() -> dict:
         # the run goes on once everything is known: the soak measures the loop, not the
         # learning, and a run that ends at all_known_at is too short to be one
         records, summary, wall = demo_run(
-            meter, EXPERIMENTS, ("-p", "curiosity_node:stop_when_all_known:=false"))
+            meter, EXPERIMENTS, {"curiosity_node": {"stop_when_all_known": False}})
     finally:
         writes.restore()
     times = [r["wall_time"] for r in records]
@@ -148,8 +148,8 @@ def run() -> dict:
         "all_known_at": summary.get("all_known_at"),
         "run_wall_s": round(wall, 1),
         "targets": TARGETS,
-        "notes": (f"katana-demo --experiments {EXPERIMENTS} --seed 0 --ros-args -p "
-                  "curiosity_node:stop_when_all_known:=false in this process (sim at "
+        "notes": (f"katana-demo --experiments {EXPERIMENTS} --seed 0 --params OVERLAY "
+                  "(curiosity_node: stop_when_all_known false) in this process (sim at "
                   "real_time_factor 0, every node in one process, headless); per block of "
                   f"{BLOCK}: the median gap between logged experiments beside the median "
                   "time inside physics, renders, segmentation, the judge and the fovea "
