@@ -62,6 +62,13 @@ FREE_SPACE_MARGIN_M = 0.03
 ARM_LEVER_M = 0.7
 
 
+def _riding_velocity(link_state, point) -> tuple[np.ndarray, np.ndarray]:
+    """Linear and angular velocity of a point fixed to a link, from its getLinkState with
+    computeLinkVelocity (the linear velocity there is its centre of mass's)."""
+    w = np.array(link_state[7])
+    return np.array(link_state[6]) + np.cross(w, np.subtract(point, link_state[0])), w
+
+
 class _Refused:
     """The stand-in controller of a goal refused before it started."""
 
@@ -170,6 +177,7 @@ class PhysicsSim:
         self._probe_arm = p.loadURDF(self._arm_file, (0, 0, 0), useFixedBase=True,
                                      physicsClientId=self._probe_cid)
         self._gripper_link = self.link_index["katana_gripper_link"]
+        self._pad_links = [self.link_index[name] for name in FINGER_PAD_LINKS]
         self._probe_links = [i for i in range(self._pb(p.getNumJoints, self.arm))
                              if self._pb(p.getCollisionShapeData, self.arm, i)]
 
@@ -507,7 +515,6 @@ class PhysicsSim:
         """The block held between both finger pads, moving with the gripper, as (body, pose
         in the gripper's frame); () when no block touches the fingers; None when the hand
         touches a block in another way (a push, a block slipping)."""
-        pads = [self.link_index[name] for name in FINGER_PAD_LINKS]
         touched = [body for body in self.blocks.values()
                    if self._pb(p.getContactPoints, self.arm, body)]
         if not touched:
@@ -515,13 +522,12 @@ class PhysicsSim:
         if len(touched) > 1:
             return None
         body = touched[0]
-        if not all(self._pb(p.getContactPoints, self.arm, body, pad) for pad in pads):
+        if not all(self._pb(p.getContactPoints, self.arm, body, pad) for pad in self._pad_links):
             return None
         state = self._pb(p.getLinkState, self.arm, self._gripper_link, computeLinkVelocity=1)
-        com, v_com, w = np.array(state[0]), np.array(state[6]), np.array(state[7])
         pos, orn = self._pb(p.getBasePositionAndOrientation, body)
         lin, ang = self._pb(p.getBaseVelocity, body)
-        riding = v_com + np.cross(w, np.array(pos) - com)  # the gripper's velocity there
+        riding, w = _riding_velocity(state, pos)
         if (np.linalg.norm(np.subtract(lin, riding)) > REST_SPEED_M_S
                 or np.linalg.norm(np.subtract(ang, w)) > REST_SPIN_RAD_S):
             return None
@@ -557,8 +563,7 @@ class PhysicsSim:
             state = self._pb(p.getLinkState, self.arm, self._gripper_link,
                              computeLinkVelocity=1, computeForwardKinematics=1)
             pos, orn = p.multiplyTransforms(state[4], state[5], held[1], held[2])
-            w = np.array(state[7])
-            lin = np.array(state[6]) + np.cross(w, np.subtract(pos, state[0]))
+            lin, w = _riding_velocity(state, pos)
             self._pb(p.resetBasePositionAndOrientation, held[0], pos, orn)
             self._pb(p.resetBaseVelocity, held[0], lin.tolist(), w.tolist())
         self._steps += n
