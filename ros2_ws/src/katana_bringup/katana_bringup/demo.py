@@ -155,10 +155,12 @@ def demo_options(args, params: ParamSet) -> None:
         params.set(curiosity, "strategy", args.strategy, "--strategy")
     if args.quarantine_bad_lines:
         params.set(curiosity, "quarantine_bad_lines", True, "--quarantine-bad-lines")
-    if not args.params and foxglove_address(args) is None:
+    chosen = params.sections.get("perception_node", {}).get("publish_debug_image")
+    if foxglove_address(args) is None and (chosen is None or chosen.option == "--backend"):
         # Headless: nobody looks at the debug image (its drawing would take the shared
-        # process's CPU from the physics). With --foxglove it is drawn while a panel shows it.
-        params.set("perception_node", "publish_debug_image", False, "--params")
+        # process's CPU from the physics), unless a --params file or -p asks for it. With
+        # --foxglove it is drawn while a panel shows it.
+        params.set("perception_node", "publish_debug_image", False, "--foxglove")
     if args.backend == "sim":
         params.set("sim_node", "seed", args.seed, "--seed")
         params.set("sim_node", "real_time_factor", args.real_time_factor, "--real-time-factor")
@@ -213,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     out: Path = args.out
     new_folder = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    params = args.param_set.values(skip_option="--ros-args")  # rclpy reads those itself
+    params = args.param_set.values()
 
     terminal = RunTerminal(out, verbose=args.verbose)
     try:

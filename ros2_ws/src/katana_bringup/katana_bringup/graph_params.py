@@ -191,8 +191,9 @@ def hardware_base(backend: str) -> dict[str, dict[str, Entry]]:
 
 def add_ros_args(params: ParamSet, ros_args: Sequence[str]) -> None:
     """Check ROS arguments as rclpy.init will parse them and add their parameters: each
-    `-p [node:]name:=value` (for every node without a node name) and each `--params-file F`.
-    Raises CommandLineError naming --ros-args."""
+    `-p [node:]name:=value` and each `--params-file F`. A `-p` without a node name is every
+    node's: it replaces the name in every section read before it, as a node's own entry would
+    otherwise win over the wildcard. Raises CommandLineError naming --ros-args."""
     if not ros_args:
         return
     problem = ros_args_problem(["prog", *ros_args])
@@ -207,7 +208,10 @@ def add_ros_args(params: ParamSet, ros_args: Sequence[str]) -> None:
             except yaml.YAMLError as err:
                 raise CommandLineError("--ros-args", f"-p {value}: not a YAML value: "
                                        f"{' '.join(str(err).split())}") from None
-            params.set(node or WILDCARD, name, parsed, "--ros-args", f"-p {value}")
+            for section in ([node] if node else [WILDCARD, *(
+                    n for n, entries in params.sections.items()
+                    if n != WILDCARD and name in entries)]):
+                params.set(section, name, parsed, "--ros-args", f"-p {value}")
         elif flag == "--params-file":
             params.read(value, "--ros-args")
 

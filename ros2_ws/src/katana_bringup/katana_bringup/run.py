@@ -5,7 +5,8 @@
 
 Loads standard ROS parameter YAML files (`node_name: {ros__parameters: {...}}`, with `/**` for
 every node): the packaged ones (config/graph.yaml, then the backend's: backend_sim.yaml and
-sim.yaml, or backend_hardware.yaml), overlaid by each `--params FILE` in order. Each node gets
+sim.yaml, or backend_hardware.yaml), overlaid by each `--params FILE` in order, then by the
+parameters of `--ros-args` (`-p [node:]name:=value`, `--params-file F`). Each node gets
 its parameters as overrides, and every node spins on one MultiThreadedExecutor. Every option,
 every `--params` file and the parameters of `--ros-args` are checked before any node is built,
 by the rules the nodes apply (graph_params): a section of no node, an undeclared name, a value
@@ -235,11 +236,11 @@ def graph_param_set(backend: str, overlays: list[Path], ros_args: list[str] = ()
     started). Raises CommandLineError naming the option (and the file, line and key)."""
     try:
         params = ParamSet()
-        # rclpy gives a node the ROS arguments' parameters below its explicit overrides (the
-        # files): they are read first, so that an entry a file replaces is not checked either
-        add_ros_args(params, list(ros_args))
         read_param_files(default_params_files(backend), option="--backend", into=params)
         read_param_files(overlays, into=params)
+        # the command line's parameters win over every file, as `ros2 run` users expect (each
+        # node is given them in its overrides: rclpy ranks overrides above --ros-args)
+        add_ros_args(params, list(ros_args))
         if record is not None:
             params.set("run_recorder", "path", str(record), "--record")
         if options is not None:
@@ -299,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
     own, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
     args = parse_command_line(build_parser(), own, [graph_params_check(ros_args)])
     files = [*default_params_files(args.backend), *args.params]
-    params = args.param_set.values(skip_option="--ros-args")  # rclpy reads those itself
+    params = args.param_set.values()
 
     # katana-run handles SIGINT/SIGTERM itself (spin_nodes): the nodes stop before the context
     rclpy.init(args=["katana-run", *ros_args], signal_handler_options=SignalHandlerOptions.NO)

@@ -17,6 +17,7 @@ import yaml
 from hypothesis import given
 from hypothesis import strategies as st
 from katana_bringup import demo, graph_params, run
+from katana_common.cli_args import parse_command_line
 from katana_common.cli_testing import (
     bad_working_folder,
     cli_settings,
@@ -252,10 +253,40 @@ def test_a_good_command_line_is_taken_as_given_and_creates_nothing_while_parsed(
                                  f"--out={out}", "--ros-args", "-p", "use_sim_time:=true"])
     assert (args.experiments, args.seed, args.strategy, args.real_time_factor) == \
         (experiments, seed, strategy, rtf)
-    curiosity = args.param_set.values(skip_option="--ros-args")["curiosity_node"]
+    curiosity = args.param_set.values()["curiosity_node"]
     assert curiosity["run_dir"] == out and curiosity["max_experiments"] == experiments
     assert ros_args == ["--ros-args", "-p", "use_sim_time:=true"]
     assert tree(workdir) == before
+
+
+@pytest.mark.parametrize("prog", [run, demo])
+def test_the_command_lines_parameters_win_over_every_file(workdir, prog):
+    """`--ros-args -p` beats the packaged files and every --params file (a node's own and a
+    wildcard one), and reaches the node in its overrides (which rclpy ranks above the ROS
+    arguments it parses itself); a dedicated option still beats -p."""
+    path = workdir / "p.yaml"
+    path.write_text("sim_node:\n  ros__parameters:\n    kinematic_free_space: true\n"
+                    "curiosity_node:\n  ros__parameters:\n    theta: 0.3\n")
+    packaged = run.load_params(run.default_params_files("sim"))
+    assert packaged["sim_node"]["kinematic_free_space"] is True
+    assert packaged["/**"]["use_sim_time"] is True
+    argv = ["--params", str(path), "--ros-args", "-p", "sim_node:kinematic_free_space:=false",
+            "-p", "curiosity_node:theta:=0.2", "-p", "use_sim_time:=false"]
+    if prog is demo:
+        args, _ = demo.parse(["--out", "run", "--seed", "7", *argv, "-p",
+                              "curiosity_node:seed:=3"])
+    else:
+        args = parse_command_line(run.build_parser(), argv[:2],
+                                  [run.graph_params_check(argv[2:])])
+    values = args.param_set.values()
+    assert values["sim_node"]["kinematic_free_space"] is False
+    assert values["curiosity_node"]["theta"] == 0.2
+    for node in ("sim_node", "curiosity_node", "fovea_node"):
+        assert run.overrides_for(node, values)  # the node is given its parameters
+        given = {p.name: p.value for p in run.overrides_for(node, values)}
+        assert given["use_sim_time"] is False, node
+    if prog is demo:
+        assert values["curiosity_node"]["seed"] == 7  # --seed, not -p
 
 
 def test_katana_run_checks_only_the_started_nodes_cross_rules(workdir, capsys):

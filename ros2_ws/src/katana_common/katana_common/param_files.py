@@ -135,10 +135,9 @@ class ParamSet:
             self.replaced.setdefault(node, []).append((name, section[name]))
         section[name] = entry
 
-    def values(self, skip_option: str | None = None) -> dict[str, dict[str, Any]]:
-        """{node: {name: value}}, as katana_bringup.run.load_params returns them (without the
-        entries `skip_option` brought in)."""
-        return {node: {k: e.value for k, e in entries.items() if e.option != skip_option}
+    def values(self) -> dict[str, dict[str, Any]]:
+        """{node: {name: value}}, as katana_bringup.run.load_params returns them."""
+        return {node: {k: e.value for k, e in entries.items()}
                 for node, entries in self.sections.items()}
 
     def overrides(self, node: str) -> dict[str, Entry]:
