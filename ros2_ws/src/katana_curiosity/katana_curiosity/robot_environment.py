@@ -85,6 +85,8 @@ class RobotEnvironment:
         self._count_at_done: int | None = None
         self._done_ns = 0
         self._experience: int | None = None  # the last experience out, awaited from the memory
+        self._reset_stamp_ns: int | None = None  # the last reset's scene stood from (camera time)
+        self._stood_ns: int | None = None  # ... as awaited after the scene change it caused
         self._joint_states = 0
         self._arm_ready: bool | None = None  # the driver's arm_ready; None: none heard yet
         node.create_subscription(BlockArray, BLOCKS_TOPIC, self.on_blocks, STATE_QOS, **kw)
@@ -227,9 +229,11 @@ class RobotEnvironment:
         it has when asked. After an experience this waits for a memory/blocks that names it as
         handled with a settled frame after it (one located on the levels the experience left,
         which changed none of them: the memory is at rest until the scene changes): an exact
-        ordering, whatever the thread timing. After a scene change without one (a reset, a
-        skill attempt) it waits for a message stamped `_STAMP_MARGIN_NS` past the change (or,
-        if the stamps are on another clock, the fourth).
+        ordering, whatever the thread timing. After a reset whose answer said from when the new
+        scene stood, it waits for a message built from an image stamped at or after that, with
+        a settled frame: exact too. After another scene change without an experience (a skill
+        attempt, a backend that gives no stamp) it waits for a message stamped
+        `_STAMP_MARGIN_NS` past the change (or, if the stamps are on another clock, the fourth).
         """
         if self._experience is not None:
             index = self._experience
@@ -246,6 +250,12 @@ class RobotEnvironment:
         if self._count_at_done is None:
             self.wait_for_blocks()
             return
+        if self._stood_ns is not None:
+            stood = self._stood_ns
+            self._wait(lambda: self._blocks is not None and _stamp_ns(self._blocks) >= stood
+                       and self._blocks.settled_frames > 0,
+                       self.config.blocks_timeout_s, f"{BLOCKS_TOPIC} of the reset scene")
+            return
         count, after = self._count_at_done, self._done_ns + _STAMP_MARGIN_NS
         self._wait(lambda: self._blocks_count > count + 1 and (
             _stamp_ns(self._blocks) >= after or self._blocks_count > count + 3),
@@ -253,10 +263,13 @@ class RobotEnvironment:
 
     def mark_scene_changed(self, experience: int | None = None) -> None:
         """`experience`: the index of the experience about to go out on curiosity/experience
-        (the memory echoes it); None: the scene changed without one."""
+        (the memory echoes it); None: the scene changed without one (after `reset`, from the
+        time its answer gave)."""
         self._experience = experience
         self._count_at_done = self.blocks_count()
         self._done_ns = self.node.get_clock().now().nanoseconds
+        self._stood_ns = self._reset_stamp_ns if experience is None else None
+        self._reset_stamp_ns = None
 
     def observe(self) -> Setting:
         start = time.perf_counter()
@@ -479,12 +492,16 @@ class RobotEnvironment:
                 if b.on_top and not reach.within_play_area(b.pose.position.x, b.pose.position.y)]
 
     def reset(self, seed: int = -1) -> str:
+        """Reset the world; the next `mark_scene_changed()` waits for the new scene from the
+        time the backend says it stood (ResetWorld's stamp), if it says."""
         client = self._reset()
         if client is None:
             raise TimeoutError("no ResetWorld service is available")
         response = self._call(client, ResetWorld.Request(seed=seed))
         if not response.success:
             raise ExperimentAborted("reset_failed", f"reset_world: {response.message}")
+        stamp = int(response.stamp.sec) * 1_000_000_000 + int(response.stamp.nanosec)
+        self._reset_stamp_ns = stamp or None
         return response.message
 
 

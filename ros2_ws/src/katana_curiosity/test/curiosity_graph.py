@@ -32,7 +32,9 @@ class FakeGraph(Node):
 
     def __init__(self, context, *, unusable_first: int = 0, grasp_misses: int = 0,
                  hold_goals: threading.Event | None = None, arm_ready: bool | None = None,
-                 failures: list[int] | None = None) -> None:
+                 failures: list[int] | None = None, reset_ahead_s: float | None = None) -> None:
+        """reset_ahead_s: the reset answers that the new scene stands from this far ahead of
+        the clock (ResetWorld's stamp), and the memory stamps its frames with the clock."""
         super().__init__(f"fake_graph_{uuid.uuid4().hex[:8]}", context=context)
         self.rng = np.random.default_rng(0)
         self.unusable_first = unusable_first
@@ -43,6 +45,10 @@ class FakeGraph(Node):
         self.observations = 0
         self.goals: list[PickAndPlace.Goal] = []
         self.resets = 0
+        self.reset_ahead_s = reset_ahead_s
+        self.reset_stamps_ns: list[int] = []
+        self.frame_ns = 0  # the stamp of the last memory/blocks published
+        self.seen_at_observe: list[tuple[int, int]] = []  # (frame stamp, settled frames)
         self.experiences: list[Experience] = []
         self.echo = (-1, 0)  # (last experience, settled frames), as block_memory_node numbers them
         self.blocks_pub = self.create_publisher(BlockArray, BLOCKS_TOPIC, STATE_QOS)
@@ -68,6 +74,9 @@ class FakeGraph(Node):
         self.joints_pub.publish(JointState(name=["j"], position=[0.0]))
         msg = BlockArray(experience=self.echo[0], settled_frames=self.echo[1])
         msg.header.frame_id = "world"
+        if self.reset_ahead_s is not None:
+            msg.header.stamp = self.get_clock().now().to_msg()
+            self.frame_ns = self.get_clock().now().nanoseconds
         for i, (x, y) in enumerate(BLOCK_XY):
             b = Block(id=f"b{i}", color=f"c{i}", level=1, on_top=True, visible=True,
                       resting_pose_known=True)
@@ -84,6 +93,7 @@ class FakeGraph(Node):
 
     def observe(self, request, response):
         self.observations += 1
+        self.seen_at_observe.append((self.frame_ns, self.echo[1]))
         response.success = True
         response.setting = self.observations
         if self.observations <= self.unusable_first:
@@ -129,6 +139,11 @@ class FakeGraph(Node):
     def reset(self, request, response):
         self.resets += 1
         response.success = True
+        if self.reset_ahead_s is not None:
+            stood = self.get_clock().now().nanoseconds + int(self.reset_ahead_s * 1e9)
+            self.reset_stamps_ns.append(stood)
+            response.stamp.sec, response.stamp.nanosec = divmod(stood, 1_000_000_000)
+            self.echo = (self.echo[0], 0)  # the new scene changed the levels
         return response
 
     def on_experience(self, msg: Experience) -> None:

@@ -139,6 +139,18 @@ def test_bad_instances_and_missed_grasps_do_not_stop_the_run(tmp_path) -> None:
     assert fake.observations >= 6
 
 
+def test_after_a_reset_the_next_look_waits_for_a_settled_frame_of_the_new_scene(
+        tmp_path) -> None:
+    """A reset that says from when its scene stands (ResetWorld's stamp) is followed by an
+    observation only once the memory has published a frame of an image stamped at or after
+    it with a settled frame: not one a fixed margin after the learner's own clock."""
+    node, fake, _ = run_graph(tmp_path, max_experiments=2, unusable_first=2, reset_ahead_s=0.3)
+    assert len(fake.reset_stamps_ns) == 2 and fake.observations >= 4
+    for stood, (frame_ns, settled) in zip(fake.reset_stamps_ns, fake.seen_at_observe[1:],
+                                          strict=False):
+        assert frame_ns >= stood and settled >= 1, (frame_ns - stood, settled)
+
+
 def test_unreachable_picks_try_another_block_and_unreachable_places_drop(tmp_path) -> None:
     codes = PickAndPlace.Result
     node, fake, _ = run_graph(tmp_path, max_experiments=2, failures=[

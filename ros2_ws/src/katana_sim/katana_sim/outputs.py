@@ -5,6 +5,7 @@ joint_states and sim/ground_truth)."""
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 
@@ -60,19 +61,23 @@ class SimOutputs:
     def ground_truth_msg(self) -> BlockArray:
         return msgs.ground_truth_msg(self.world, self.frame)
 
-    def publish_due(self, images: bool, force: bool = False) -> None:
-        """Publish what is due at the world's time (call under the lock). Once a signal has
-        shut the context down, publishing fails: then stop quietly (run_node will clean up)."""
+    def publish_due(self, images: bool, force: bool = False, image_now: bool = False) -> None:
+        """Publish what is due at the world's time (call under the lock); `image_now`: an
+        image too, due or not. Once a signal has shut the context down, publishing fails: then
+        stop quietly (run_node will clean up)."""
         try:
-            self._publish(images, force)
+            self._publish(images, force, image_now)
         except Exception:
             if self.node.context.ok() and not self.stopping.is_set():
                 raise
             self.stopping.set()
 
-    def _publish(self, images: bool, force: bool) -> None:
+    def _publish(self, images: bool, force: bool, image_now: bool) -> None:
         t, wall = self.world.time, time.monotonic()
         due = set(self.schedule.due(t, None if images else ("clock", "joints", "truth")))
+        if image_now:
+            due.add("camera")
+            self._render_wall = -math.inf  # not held back by the wall-time cap either
         if force:  # a motion's end is seen at once (katana-demo judged against a stale truth)
             due |= {"clock", "joints", "truth"}
         for name, cap in self.wall_caps.items():

@@ -9,7 +9,9 @@ and ~/reset_world.
 Pacing (katana_sim.core.pacing): with real_time_factor > 0 a stepping thread keeps simulated time
 at that multiple of wall time and action callbacks wait for it; with 0 each action callback
 lock-steps the physics of its own motion to the end, so runs are deterministic, while idle time
-passes with the physics frozen. Outputs follow simulated time (katana_sim.outputs)."""
+passes with the physics frozen; images are then made only with the arm out of the camera's view
+(PhysicsSim.arm_in_view), so what they show never depends on thread timing. Outputs follow
+simulated time (katana_sim.outputs)."""
 
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ from control_msgs.action import FollowJointTrajectory, GripperCommand
 from katana_common.diagnostics import Diagnostics
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.health import ClockRatio, pace_health
-from katana_common.messages import trajectory_goal
+from katana_common.messages import time_msg, trajectory_goal
 from katana_common.node_runner import run_node
 from katana_common.params import ParameterError, declare_parameters
 from katana_description import arm_contract as ac
@@ -35,7 +37,13 @@ from katana_sim.core import ConfigError, PhysicsSim, pacing
 from katana_sim.outputs import FAST_WALL_CAP_S, SimOutputs
 from katana_sim.sim_params import PARAMS, cross_check, sim_config
 
-FAST_IMAGE_IDLE_S = 0.05  # fast mode: render once the arm has been idle this long (wall)
+#: fast mode renders only while the arm stands out of the camera's view (PhysicsSim.arm_in_view)
+#: and has been idle this long (wall): the pause between two goals of a task with the arm parked
+#: (the park and the fingers' rest opening) is not imaged, as the motion after it still steps
+#: the physics under blocks that have only just come to rest
+FAST_IMAGE_IDLE_S = 0.05
+#: ... and an arm left standing in view (a task that ended where it failed) after this long
+FAST_IMAGE_STANDING_S = 1.0
 FEEDBACK_PERIOD_S = 0.2  # simulated seconds between action feedback messages
 
 
@@ -87,6 +95,7 @@ class SimNode(Node):
         world, dt = self.world, self.world.dt
         pacer = pacing.WallPacer(1.0 if self.fast else self.rtf)
         mine, idle_since = None, time.monotonic()
+        fresh = False  # fast mode: the scene changed since the last image
         while not self.stopping.is_set():
             now = time.monotonic()
             if self._lockstepping:  # read without the lock, which the stepping callback wants
@@ -100,19 +109,28 @@ class SimNode(Node):
                     if world.time != mine:  # time moved under us: a motion or a reset
                         pacer.anchor(now, world.time)
                         idle_since = now if self.fast else idle_since
+                        fresh = self.fast
                     steps = int(pacer.owed(now, world.time) / dt)
                     if steps > 0:
                         if self.fast:
                             world.advance_clock(steps * dt)
                         else:
                             world.step(min(steps, int(0.05 / dt) + 1))
-                        images = not self.fast or now - idle_since >= FAST_IMAGE_IDLE_S
-                        self.outputs.publish_due(images=images)
+                        images = not self.fast or self._may_image(now - idle_since)
+                        # a changed scene is imaged at once: the image after a task is the
+                        # first one the sim makes once the arm is out of view, not a period on
+                        self.outputs.publish_due(images=images, image_now=images and fresh)
+                        fresh = fresh and not images
                     mine = world.time
             if not self.fast:
                 with self._stepped:
                     self._stepped.notify_all()
             self.stopping.wait(0.002 if not self.fast else 0.005)
+
+    def _may_image(self, idle_s: float) -> bool:
+        """Fast mode: whether an image may be made now (under the lock)."""
+        return idle_s >= FAST_IMAGE_IDLE_S and (
+            idle_s >= FAST_IMAGE_STANDING_S or not self.world.arm_in_view())
 
     def ground_truth_msg(self):  # the true scene as a BlockArray, for tests and benches
         with self.lock:
@@ -242,6 +260,7 @@ class SimNode(Node):
                 self.world.reset(None if request.seed < 0 else int(request.seed))
                 self.outputs.truth_pub.publish(self.outputs.ground_truth_msg())
                 seed = self.world.last_seed
+                response.stamp = time_msg(self.world.time)  # no image before it shows it
         except (RuntimeError, ValueError, OverflowError) as exc:
             response.success, response.message = False, str(exc)
             return response

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ from katana_description import arm_contract as ac
 from katana_description import models as m
 from katana_interfaces.msg import BlockArray
 from katana_interfaces.srv import ResetWorld
-from katana_sim.sim_node import SimNode
+from katana_sim.sim_node import FAST_IMAGE_STANDING_S, SimNode
 from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
 from rclpy.parameter import Parameter
@@ -104,6 +105,32 @@ def test_trajectory_and_gripper_actions(graph):
     assert wait_until(lambda: np.allclose(got["joints"].position[:5], target, atol=0.01))
     res = _send(graph["grip"], GripperCommand.Goal())  # position 0, default effort
     assert res.result.reached_goal and abs(res.result.position) < 0.011
+
+
+def test_the_fast_sim_images_only_an_arm_out_of_view(graph):
+    """Fast mode: an arm standing over the table is not imaged (until it has stood there
+    FAST_IMAGE_STANDING_S), and once it parks the changed scene is imaged."""
+    probe, sim = graph["probe"], graph["sim"]
+    stamps: list[float] = []
+    sub = probe.create_subscription(
+        Image, "camera/image_raw",
+        lambda msg: stamps.append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9),
+        SENSOR_QOS)
+    try:
+        over_table = [0.0, 1.234239, -1.075592, 1.729443, 0.0]  # tool at (0.2, 0, 0.1)
+        assert _send(graph["arm"], _traj(list(m.ARM_JOINTS), [over_table], [6.0])).result \
+            .error_code == 0
+        stood = sim.world.time  # the motion's end (the world is frozen since)
+        assert sim.world.arm_in_view()
+        time.sleep(0.6 * FAST_IMAGE_STANDING_S)
+        assert not [t for t in stamps if t >= stood - 1e-9]
+        assert _send(graph["arm"], _traj(list(m.ARM_JOINTS), [list(m.PARK_POSE)], [6.0])) \
+            .result.error_code == 0
+        parked = sim.world.time
+        assert not sim.world.arm_in_view()
+        assert wait_until(lambda: [t for t in stamps if t >= parked - 1e-9], 5.0)
+    finally:
+        probe.destroy_subscription(sub)
 
 
 @pytest.mark.parametrize(
@@ -192,10 +219,28 @@ def test_reset_world_scatters_again(graph):
     assert wait_until(lambda: graph["sim"].world.last_seed == 42)
     sim = graph["sim"]
     first = [(b.pose.position.x, b.pose.position.y) for b in sim.ground_truth_msg().blocks]
-    resp = _result(cli.call_async(ResetWorld.Request(seed=-1)))
-    assert resp.success
-    second = [(b.pose.position.x, b.pose.position.y) for b in sim.ground_truth_msg().blocks]
-    assert not np.allclose(first, second)
+    stamps: list = []
+    sub = graph["probe"].create_subscription(BlockArray, "sim/ground_truth", stamps.append,
+                                             STATE_QOS)
+    try:
+        resp = _result(cli.call_async(ResetWorld.Request(seed=-1)))
+        assert resp.success
+        second = [(b.pose.position.x, b.pose.position.y) for b in sim.ground_truth_msg().blocks]
+        assert not np.allclose(first, second)
+        # the answer says from when the new scene stands: what is stamped from then on shows it
+        stood = resp.stamp.sec + resp.stamp.nanosec * 1e-9
+        assert 0.0 < stood <= sim.world.time + 1e-9  # (nanoseconds, rounded)
+        assert wait_until(lambda: any(_sec(m.header.stamp) >= stood for m in stamps))
+        after = [m for m in stamps if _sec(m.header.stamp) >= stood]
+        for msg in after:
+            assert np.allclose([(b.pose.position.x, b.pose.position.y) for b in msg.blocks],
+                               second, atol=1e-6)
+    finally:
+        graph["probe"].destroy_subscription(sub)
+
+
+def _sec(stamp) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
     assert all(b.level == 1 and b.visible for b in graph["sim"].ground_truth_msg().blocks)
 
 

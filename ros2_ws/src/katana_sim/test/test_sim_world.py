@@ -14,6 +14,7 @@ from katana_description import arm_contract as ac
 from katana_description import models as m
 from katana_sim.core import CameraModel, ConfigError, PhysicsSim, SimConfig, TrajectoryGoal
 from katana_sim.core import controllers as ctl
+from katana_sim.core.physics import FIRST_REACHING_LINK
 from scipy.interpolate import CubicHermiteSpline
 
 
@@ -256,6 +257,42 @@ def test_parked_arm_is_out_of_the_camera_view(world):
         physicsClientId=world._cid)
     seg = np.asarray(seg).reshape(cam.height, cam.width)
     assert ((seg >= 0) & ((seg & ((1 << 24) - 1)) == world.arm) & ((seg >> 24) - 1 >= 1)).any()
+
+
+def _arm_links_drawn(world) -> set[int]:
+    """The arm's link indices with a pixel in the image, by the renderer's segmentation."""
+    cam = world.camera
+    _, _, _, _, seg = p.getCameraImage(
+        cam.width, cam.height, cam.view_matrix(), cam.projection_matrix(),
+        renderer=p.ER_TINY_RENDERER, flags=p.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
+        physicsClientId=world._cid)
+    seg = np.asarray(seg).reshape(cam.height, cam.width)
+    arm = (seg >= 0) & ((seg & ((1 << 24) - 1)) == world.arm)
+    return {int(i) for i in np.unique((seg[arm] >> 24) - 1)}
+
+
+_LIMITS = [m.JOINT_LIMITS[name] for name in m.ARM_JOINTS]
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.tuples(*(st.floats(lo, hi) for lo, hi in _LIMITS)))
+def test_an_arm_out_of_view_has_no_reaching_link_in_the_image(world, q):
+    """arm_in_view (bounding boxes) never says 'out of view' for a pose whose forearm, wrist,
+    gripper or fingers the renderer draws; the fast sim images the scene only then."""
+    world.set_arm_positions(q, m.GRIPPER_OPEN)
+    reaching = world.link_index[FIRST_REACHING_LINK]
+    drawn = {i for i in _arm_links_drawn(world) if i >= reaching}
+    assert world.arm_in_view() or not drawn, (q, drawn)
+
+
+def test_arm_in_view_tells_the_parked_arm_from_one_over_the_table(world):
+    world.set_arm_positions(m.PARK_POSE, m.GRIPPER_OPEN)
+    assert not world.arm_in_view()
+    world.set_arm_positions([0.0, 1.234239, -1.075592, 1.729443, 0.0])  # tool at (0.2, 0, 0.1)
+    assert world.arm_in_view()
+    assert max(_arm_links_drawn(world)) >= world.link_index[FIRST_REACHING_LINK]
+    world.set_arm_positions(m.PARK_POSE, m.GRIPPER_OPEN)  # the answer follows the pose
+    assert not world.arm_in_view()
 
 
 def test_a_still_scene_is_drawn_once_and_any_change_draws_it_anew(monkeypatch):

@@ -51,6 +51,8 @@ from katana_sim.core.config import SimConfig
 from katana_sim.core.ground_truth import BlockState, block_states, yaw_of
 
 FINGER_PAD_LINKS = ("katana_r_finger_link", "katana_l_finger_link")
+#: the arm's links from this one out reach over the table (arm_in_view)
+FIRST_REACHING_LINK = "katana_motor3_lift_link"
 #: a block slower than this, and turning slower than this, is at rest
 REST_SPEED_M_S = 2e-3
 REST_SPIN_RAD_S = 2e-2
@@ -110,6 +112,7 @@ class PhysicsSim:
         self._trajectory: ctl.TrajectoryFollower | None = None
         self._gripper: ctl.GripperController | None = None
         self._rendered: tuple[tuple, np.ndarray] | None = None  # (scene key, image)
+        self._in_view: tuple[tuple[int, int], bool] | None = None  # (steps, changes), answer
         self.reset(self.cfg.seed)
         self._build_probe()
 
@@ -180,6 +183,8 @@ class PhysicsSim:
         self._pad_links = [self.link_index[name] for name in FINGER_PAD_LINKS]
         self._probe_links = [i for i in range(self._pb(p.getNumJoints, self.arm))
                              if self._pb(p.getCollisionShapeData, self.arm, i)]
+        first = self.link_index[FIRST_REACHING_LINK]
+        self._reaching_links = [i for i in self._probe_links if i >= first]
 
     def close(self) -> None:
         for cid in (self._cid, self._probe_cid):
@@ -581,6 +586,27 @@ class PhysicsSim:
             self._gripper = None
 
     # ------------------------------------------------------------------ sensing
+    def arm_in_view(self) -> bool:
+        """Whether the camera may see the part of the arm that reaches over the table (every
+        link from the forearm out, by its bounding box): the fast sim renders without it only,
+        so that no image shows the arm mid-task, where it hides blocks and shifts the pose
+        seen of a block it half covers. The parked arm is out of view; the base and upper arm
+        stand at the image's edge in every pose and are not counted."""
+        key = (self._steps, self._changes)
+        if self._in_view is not None and self._in_view[0] == key:
+            return self._in_view[1]
+        boxes = np.array([self._pb(p.getAABB, self.arm, i) for i in self._reaching_links])
+        corners = np.stack([np.where([(c >> k) & 1 for k in range(3)], boxes[:, 1], boxes[:, 0])
+                            for c in range(8)], axis=1)  # (links, 8, 3)
+        uv = self.camera.project(corners.reshape(-1, 3)).reshape(len(boxes), 8, 2)
+        cam = self.camera
+        seen = bool(np.any(
+            ~np.isfinite(uv).all(axis=(1, 2))  # a corner behind the camera: may be seen
+            | ((uv[..., 0].min(axis=1) <= cam.width - 1) & (uv[..., 0].max(axis=1) >= 0)
+               & (uv[..., 1].min(axis=1) <= cam.height - 1) & (uv[..., 1].max(axis=1) >= 0))))
+        self._in_view = (key, seen)
+        return seen
+
     def _raw_render(self, width: int, height: int, focal: float) -> tuple[np.ndarray, np.ndarray]:
         cam = self.camera
         fov = math.degrees(2.0 * math.atan(height / 2.0 / focal))
