@@ -10,7 +10,13 @@ from . import reproducing_text as prose
 from .claims import RunSection, heights_of, ranking
 from .formatting import Json, display, experiments_of, finite, get, num, strategies_of, table
 from .provenance import made_by, not_measured, paper_command
-from .reproducing_robot import robot_section, skill_section, study_section, truth_section
+from .reproducing_robot import (
+    after30_section,
+    robot_section,
+    skill_section,
+    study_section,
+    truth_section,
+)
 from .sources import GENERATED
 
 
@@ -70,6 +76,9 @@ def render_reproducing(results: Mapping) -> str:
         robot_section(results.get("robot-paper"), results.get("robot-paper-claims")), "",
         "### The study at the claims' scale", "", prose.STUDY_ABOUT, "",
         study_section(results.get("robot-study"), results.get("robot-study-claims")), "",
+        "### The claim the study could decide with the fewest seeds", "", prose.AFTER30_ABOUT,
+        "", after30_section(results.get("robot-after30"), results.get("robot-after30-claims")),
+        "",
         "### The stacking skill (Figure 14)", "", prose.SKILL_ABOUT, "",
         skill_section(results.get("robot-skill")), "",
         "## Beyond the paper: baselines", "", prose.BASELINES_ABOUT, "",

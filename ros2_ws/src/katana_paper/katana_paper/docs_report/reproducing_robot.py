@@ -132,6 +132,11 @@ study_section = RunSection("robot-study", _study_settings, prose.ROBOT_TABLE, ro
                            prose.STUDY_CLAIMS)
 
 
+#: the seeds the study said would decide Q1 against Random after 30 experiments, run once
+after30_section = RunSection("robot-after30", _robot_settings, prose.ROBOT_TABLE,
+                             robot_runs_table, prose.AFTER30_CLAIMS)
+
+
 def skill_section(data: Json) -> str:
     """The skill trials: stacks built, placements per success and falls of each model."""
     if data is None:
