@@ -38,11 +38,10 @@ from katana_sim.outputs import FAST_WALL_CAP_S, SimOutputs
 from katana_sim.sim_params import PARAMS, cross_check, sim_config
 
 #: fast mode renders only while the arm stands out of the camera's view (PhysicsSim.arm_in_view)
-#: and has been idle this long (wall): economy only, so that the pause between two goals of a
-#: task with the arm parked (the fingers opening while the task plans, then the approach) is
-#: rarely imaged; an image there shows what one after the task's end would show (a finger
-#: motion clear of every block leaves every block where it was)
-FAST_IMAGE_IDLE_S = 0.005
+#: and has been idle this long (wall): the pause between two goals of a task with the arm parked
+#: (the park and the fingers' rest opening) is not imaged, as the motion after it still steps
+#: the physics under blocks that have only just come to rest
+FAST_IMAGE_IDLE_S = 0.05
 #: ... and an arm left standing in view (a task that ended where it failed) after this long
 FAST_IMAGE_STANDING_S = 1.0
 FEEDBACK_PERIOD_S = 0.2  # simulated seconds between action feedback messages

@@ -30,8 +30,7 @@ PARAMS: tuple[Param, ...] = SCENE_PARAMS + (
     Param("kinematic_free_space", SimConfig.kinematic_free_space, "Move the arm, and a block "
           "held still in its grip, along the plan without physics steps while both are 3 cm "
           "clear of every other block and of the table, the fingers still and every other block "
-          "at rest; and put every block back where it was after a finger motion that kept the "
-          "hand as clear (no creep); false: physics alone throughout."),
+          "at rest; false: physics steps throughout."),
     Param("real_time_factor", 1.0, "Simulated seconds per wall second; 0: fast lock-step mode "
           "(physics runs only inside the motions it serves, deterministic).", 0.0, 100.0),
     Param("camera_focal_px", 750.0, "Focal length fx = fy, px.", 10.0, 10000.0),

@@ -217,44 +217,6 @@ def test_gripper_holds_a_block_by_friction_only(world):
     assert abs(world.block_pose("red")[0][2] - 0.015) < 2e-3
 
 
-def _poses(world) -> np.ndarray:
-    """Every block's position and quaternion, one row each."""
-    return np.array([np.concatenate(world.block_pose(bid)) for bid in sorted(world.blocks)])
-
-
-def test_fingers_moving_clear_of_every_block_leave_the_blocks_exactly_where_they_were():
-    """A finger motion at the park pose steps the physics (its end is the fingers' own), but no
-    block can be touched, so every block ends where it was (to 1e-12: the quaternion is stored
-    normalised once more), where blocks that have only
-    just come to rest would otherwise creep a little with every step. With the hand near a
-    block the physics alone decides: fingers closing on a block move it."""
-    world = PhysicsSim(SimConfig(num_blocks=4, seed=3))
-    try:
-        world.set_arm_positions(m.PARK_POSE, m.GRIPPER_OPEN)
-        world.set_block_pose("red", (0.2, 0.0, 0.045), 0.3)  # dropped onto the table
-        world.step(int(0.05 / world.dt))  # landed, not yet still
-        world.settle()
-        before, steps = _poses(world), world.physics_steps
-        for target in (0.1, m.GRIPPER_OPEN):
-            h = world.start_gripper(target)
-            while not h.outcome.done:
-                world.step(6)
-            assert h.outcome.reached_goal
-        assert world.physics_steps > steps  # stepped in physics
-        assert np.abs(_poses(world) - before).max() < 1e-12
-        # the same motion, the hand over a block: physics decides, the block is squeezed
-        world.set_block_pose("red", (0.2, 0.0, 0.015), 0.0)
-        world.set_arm_positions([0.0, 1.177257, -1.593299, 1.154754, 0.0], m.GRIPPER_OPEN)
-        world.step(20)
-        before = _poses(world)
-        h = world.start_gripper(m.GRIPPER_CLOSED)
-        while not h.outcome.done:
-            world.step(6)
-        assert h.outcome.stalled and np.abs(_poses(world) - before).max() > 1e-6
-    finally:
-        world.close()
-
-
 @pytest.mark.parametrize(
     ("kwargs", "param"),
     [

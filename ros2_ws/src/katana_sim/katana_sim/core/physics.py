@@ -23,9 +23,7 @@ motors are PyBullet position motors fed a target that moves within the joint spe
 torques far above what gravity needs (katana_description.models.SIM_MOTOR_TORQUE). Blocks are held
 by contact and friction only: nothing welds a block to the hand. Through free space
 (`SimConfig.kinematic_free_space`, on by default) the arm follows its plan without physics
-steps, and a block held still between both finger pads rides in its grip: `step()` says when;
-a finger motion that keeps the hand as clear leaves every block where it was
-(`_blocks_clear_of_fingers`).
+steps, and a block held still between both finger pads rides in its grip: `step()` says when.
 
 Ground truth (levels, visibility) is core.ground_truth's, from the block poses.
 """
@@ -109,7 +107,6 @@ class PhysicsSim:
         # counts what can move the world but the arm's free moves: physics steps and teleports
         self._changes = 0
         self._horizon: tuple | None = None  # (trajectory, changes, last free step, held)
-        self._kept: dict[int, tuple] | None = None  # block poses a clear finger motion keeps
         self._tmp = tempfile.TemporaryDirectory(prefix="katana_sim_")
         self._rng = np.random.default_rng(self.cfg.seed)
         self._trajectory: ctl.TrajectoryFollower | None = None
@@ -256,7 +253,6 @@ class PhysicsSim:
         """Teleport a block (centre position, metres) and stop it."""
         body = self.blocks[block_id]
         self._changes += 1
-        self._kept = None
         quat = quaternion if quaternion is not None else p.getQuaternionFromEuler((0, 0, yaw))
         self._pb(p.resetBasePositionAndOrientation, body, tuple(position), tuple(quat))
         self._pb(p.resetBaseVelocity, body, (0, 0, 0), (0, 0, 0))
@@ -314,7 +310,6 @@ class PhysicsSim:
         """Teleport the arm (five angles) and, if given, the fingers; the motors hold there."""
         q = list(arm_q)[:5]
         self._changes += 1
-        self._kept = None
         for idx, v in zip(self._arm_idx, q, strict=True):
             self._pb(p.resetJointState, self.arm, idx, v, 0.0)
         self._targets[:5] = q
@@ -356,7 +351,6 @@ class PhysicsSim:
         if not verdict.ok:
             return ArmHandle(_Refused(ctl.refused(verdict.error_code, verdict.error_string)))
         self.cancel_trajectory("preempted by a new goal")
-        self._kept = None  # the arm may reach a block while the fingers move
         full = ctl_complete(goal, current)
         follower = ctl.TrajectoryFollower(full, self.contract, 0.0, self._targets[:5])
         follower.start_step = self._steps
@@ -390,45 +384,7 @@ class PhysicsSim:
         ctrl = ctl.GripperController(goal, self.contract, 0.0, float(pos[5:].mean()))
         ctrl.start_step = self._steps
         self._gripper = ctrl
-        self._kept = self._blocks_clear_of_fingers(float(position))
         return ArmHandle(ctrl)
-
-    def _blocks_clear_of_fingers(self, target: float) -> dict[int, tuple] | None:
-        """Every block's pose, when a finger motion towards `target` cannot touch any: no arm
-        motion runs, every block is at rest, and the hand keeps FREE_SPACE_MARGIN_M from every
-        block and the table with the fingers where they are, halfway and at the target
-        (bounding boxes, as `_free_steps` checks them); else None. The motion is stepped in
-        physics (the fingers' own dynamics decide its end), and at its end the blocks are put
-        back where they were: the steps would only have let blocks that came to rest a moment
-        ago creep by a few micrometres, which an image taken before the arm moves again would
-        show or not, depending on thread timing (the fast sim's images)."""
-        if not self.cfg.kinematic_free_space or self._trajectory is not None:
-            return None
-        bodies = list(self.blocks.values())
-        if not all(self._at_rest(body) for body in bodies):
-            return None
-        margin = FREE_SPACE_MARGIN_M
-        boxes = np.array([self._pb(p.getAABB, body, -1) for body in bodies]).reshape(-1, 2, 3)
-        lo, hi = boxes[:, 0] - margin, boxes[:, 1] + margin
-        probe, arm = self._probe_cid, self._probe_arm
-        q = self.joint_state()[0]
-        p.resetJointStatesMultiDof(arm, self._arm_idx, [[v] for v in q[:5]],
-                                   physicsClientId=probe)
-        now = float(q[5:].mean())
-        for fingers in (now, (now + target) / 2.0, target):
-            p.resetJointStatesMultiDof(arm, self._finger_idx, [[fingers]] * 2,
-                                       physicsClientId=probe)
-            if not self._clear(probe, arm, (), lo, hi):
-                return None
-        return {body: self._pb(p.getBasePositionAndOrientation, body) for body in bodies}
-
-    def _put_back_kept(self) -> None:
-        """End of a clear finger motion: every block back where it was, at rest."""
-        kept, self._kept = self._kept, None
-        for body, (pos, orn) in kept.items():
-            self._pb(p.resetBasePositionAndOrientation, body, pos, orn)
-            self._pb(p.resetBaseVelocity, body, (0, 0, 0), (0, 0, 0))
-        self._changes += 1
 
     def cancel_gripper(self, only: ArmHandle | None = None) -> None:
         """Stop the fingers where they are (if `only` is given: only that motion)."""
@@ -439,8 +395,6 @@ class PhysicsSim:
             self._gripper.cancel(float(pos[5:].mean()))
             self._targets[5:] = pos[5:].mean()
         self._gripper = None
-        if self._kept is not None:
-            self._put_back_kept()
 
     @property
     def time(self) -> float:
@@ -476,8 +430,6 @@ class PhysicsSim:
                 n -= free
         if n > 0:
             self._step_physics(n)
-        if self._kept is not None and self._gripper is None:  # a clear finger motion ended
-            self._put_back_kept()
 
     def _step_physics(self, n: int) -> None:
         forces = list(self._forces)
