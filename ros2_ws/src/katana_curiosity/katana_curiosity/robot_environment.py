@@ -500,8 +500,7 @@ class RobotEnvironment:
         response = self._call(client, ResetWorld.Request(seed=seed))
         if not response.success:
             raise ExperimentAborted("reset_failed", f"reset_world: {response.message}")
-        stamp = int(response.stamp.sec) * 1_000_000_000 + int(response.stamp.nanosec)
-        self._reset_stamp_ns = stamp or None
+        self._reset_stamp_ns = _time_ns(response.stamp) or None
         return response.message
 
 
@@ -513,7 +512,11 @@ _STAMP_MARGIN_NS = 100_000_000
 
 
 def _stamp_ns(msg: BlockArray) -> int:
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+    return _time_ns(msg.header.stamp)
+
+
+def _time_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def _cancel(handle) -> None:

@@ -38,9 +38,9 @@ from katana_sim.outputs import FAST_WALL_CAP_S, SimOutputs
 from katana_sim.sim_params import PARAMS, cross_check, sim_config
 
 #: fast mode renders only while the arm stands out of the camera's view (PhysicsSim.arm_in_view)
-#: and has been idle this long (wall): the pause between two goals of a task with the arm parked
-#: (the park and the fingers' rest opening) is not imaged, as the motion after it still steps
-#: the physics under blocks that have only just come to rest
+#: and has been idle this long (wall), so that the pause at the park pose where a task opens the
+#: fingers while it plans is rarely imaged: that grip steps the physics under blocks that have
+#: only just come to rest (docs/DESIGN.md, "The fast sim images only a scene ...")
 FAST_IMAGE_IDLE_S = 0.05
 #: ... and an arm left standing in view (a task that ended where it failed) after this long
 FAST_IMAGE_STANDING_S = 1.0

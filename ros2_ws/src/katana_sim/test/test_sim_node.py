@@ -14,6 +14,7 @@ from control_msgs.action import FollowJointTrajectory, GripperCommand
 from control_msgs.msg import JointComponentTolerance
 from diagnostic_msgs.msg import DiagnosticArray
 from katana_common.action_client import ActionClient
+from katana_common.messages import to_seconds
 from katana_common.qos import DIAGNOSTICS_QOS, JOINT_STATE_QOS, SENSOR_QOS, STATE_QOS
 from katana_common.testing import wait_until
 from katana_description import arm_contract as ac
@@ -114,7 +115,7 @@ def test_the_fast_sim_images_only_an_arm_out_of_view(graph):
     stamps: list[float] = []
     sub = probe.create_subscription(
         Image, "camera/image_raw",
-        lambda msg: stamps.append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9),
+        lambda msg: stamps.append(to_seconds(msg.header.stamp)),
         SENSOR_QOS)
     try:
         over_table = [0.0, 1.234239, -1.075592, 1.729443, 0.0]  # tool at (0.2, 0, 0.1)
@@ -228,19 +229,15 @@ def test_reset_world_scatters_again(graph):
         second = [(b.pose.position.x, b.pose.position.y) for b in sim.ground_truth_msg().blocks]
         assert not np.allclose(first, second)
         # the answer says from when the new scene stands: what is stamped from then on shows it
-        stood = resp.stamp.sec + resp.stamp.nanosec * 1e-9
+        stood = to_seconds(resp.stamp)
         assert 0.0 < stood <= sim.world.time + 1e-9  # (nanoseconds, rounded)
-        assert wait_until(lambda: any(_sec(m.header.stamp) >= stood for m in stamps))
-        after = [m for m in stamps if _sec(m.header.stamp) >= stood]
+        assert wait_until(lambda: any(to_seconds(m.header.stamp) >= stood for m in stamps))
+        after = [m for m in stamps if to_seconds(m.header.stamp) >= stood]
         for msg in after:
             assert np.allclose([(b.pose.position.x, b.pose.position.y) for b in msg.blocks],
                                second, atol=1e-6)
     finally:
         graph["probe"].destroy_subscription(sub)
-
-
-def _sec(stamp) -> float:
-    return stamp.sec + stamp.nanosec * 1e-9
     assert all(b.level == 1 and b.visible for b in graph["sim"].ground_truth_msg().blocks)
 
 

@@ -598,8 +598,8 @@ class PhysicsSim:
         boxes = np.array([self._pb(p.getAABB, self.arm, i) for i in self._reaching_links])
         corners = np.stack([np.where([(c >> k) & 1 for k in range(3)], boxes[:, 1], boxes[:, 0])
                             for c in range(8)], axis=1)  # (links, 8, 3)
-        uv = self.camera.project(corners.reshape(-1, 3)).reshape(len(boxes), 8, 2)
         cam = self.camera
+        uv = cam.project(corners.reshape(-1, 3)).reshape(len(boxes), 8, 2)
         seen = bool(np.any(
             ~np.isfinite(uv).all(axis=(1, 2))  # a corner behind the camera: may be seen
             | ((uv[..., 0].min(axis=1) <= cam.width - 1) & (uv[..., 0].max(axis=1) >= 0)
