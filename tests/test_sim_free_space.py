@@ -18,6 +18,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from katana_description import models as m
 from katana_manipulation.core import pick_place as pp
+from katana_manipulation.core.kinematics import KatanaKinematics, Unreachable
 from katana_manipulation.core.pick_place_types import SIM_MIN_SEGMENT_TIME_S, PickPlaceParams
 from katana_sim.core import PhysicsSim, SimConfig, TrajectoryGoal
 from katana_sim.core.physics import FREE_SPACE_MARGIN_M
@@ -25,6 +26,7 @@ from katana_sim.core.physics import FREE_SPACE_MARGIN_M
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 from physics_port import PhysicsPort  # noqa: E402
 
+KINEMATICS = KatanaKinematics()
 PLANNER = pp.PickPlacePlanner(params=PickPlaceParams(min_segment_time=SIM_MIN_SEGMENT_TIME_S))
 
 
@@ -135,6 +137,83 @@ def test_a_step_made_without_physics_never_comes_near_a_block_or_the_table(goal,
                 table = _distance(world, world.table)
                 nearest = min(nearest, table, *(_distance(world, b)
                                                 for b in world.blocks.values()))
+        assert nearest >= FREE_SPACE_MARGIN_M / 2
+    finally:
+        world.close()
+
+
+def _finger_motion(world, goal: float, limit_s: float = 5.0):
+    """Run one gripper goal to its end, one step at a time; the poses reached without physics
+    and the outcome."""
+    handle = world.start_gripper(goal)
+    free_poses = 0
+    nearest = math.inf
+    end = world.time + limit_s
+    while not handle.outcome.done and world.time < end:
+        before = world.kinematic_steps
+        world.step(1)
+        if world.kinematic_steps > before:
+            free_poses += 1
+            nearest = min(nearest, _distance(world, world.table),
+                          *(_distance(world, b) for b in world.blocks.values()))
+    return handle.outcome, free_poses, nearest
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_an_empty_hand_clear_of_the_blocks_opens_and_closes_without_moving_them(seed):
+    """At the park pose the fingers open and close as their physics twin's do, in the same
+    simulated time, and not one block moves by a single bit (no physics step is made); the twin
+    stepped in physics lets the blocks it has just settled creep."""
+    fast = PhysicsSim(SimConfig(seed=seed))
+    reference = PhysicsSim(SimConfig(seed=seed, kinematic_free_space=False))
+    try:
+        for world in (fast, reference):
+            world.reset(seed)
+            world.settle_motion()
+        before = {b: fast.block_pose(b) for b in fast.blocks}
+        physics_before = fast.physics_steps
+        for goal in (m.GRIPPER_OPEN, m.GRIPPER_CLOSED, 0.0):
+            t_fast, t_ref = fast.time, reference.time
+            got, free_poses, nearest = _finger_motion(fast, goal)
+            want, _, _ = _finger_motion(reference, goal)
+            assert got.status == want.status == "succeeded", (got, want)
+            assert got.reached_goal and not got.stalled, got
+            assert abs(got.position - want.position) < 0.02
+            assert abs((fast.time - t_fast) - (reference.time - t_ref)) < 0.1
+            assert free_poses > 0 and nearest >= FREE_SPACE_MARGIN_M
+        assert fast.physics_steps == physics_before
+        for bid, (pos, quat) in before.items():
+            now_pos, now_quat = fast.block_pose(bid)
+            assert np.array_equal(pos, now_pos) and np.array_equal(quat, now_quat), bid
+    finally:
+        fast.close()
+        reference.close()
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(offset=st.tuples(st.floats(-0.06, 0.06), st.floats(-0.06, 0.06)),
+       above=st.floats(0.0, 0.1), goal=st.floats(m.GRIPPER_CLOSED, m.GRIPPER_OPEN),
+       start=st.floats(m.GRIPPER_CLOSED, m.GRIPPER_OPEN), seed=st.integers(0, 1000))
+def test_fingers_moved_without_physics_never_come_near_a_block(offset, above, goal, start, seed):
+    """A block stands beside, under or between the fingers of a hand pointing down over the
+    table; whatever the fingers do without physics keeps half the margin from it (PyBullet's
+    exact distances), and a motion that would come nearer is stepped in physics."""
+    world = PhysicsSim(SimConfig(seed=seed))
+    try:
+        over = np.array([0.22, 0.0, 0.0])
+        try:
+            solution = KINEMATICS.ik_top_down(over[0], over[1], 0.01 + above, 0.0)
+        except Unreachable:
+            assume(False)
+        world.set_arm_positions(solution, fingers=start)
+        h = world.cfg.block_size[2]
+        ids = list(world.blocks)
+        world.set_block_pose(ids[0], (over[0] + offset[0], over[1] + offset[1], h / 2))
+        for bid, spare in zip(ids[1:], OUT_OF_THE_WAY, strict=False):
+            world.set_block_pose(bid, (*spare, h / 2))
+        world.settle()
+        outcome, _, nearest = _finger_motion(world, goal)
+        assert outcome.done
         assert nearest >= FREE_SPACE_MARGIN_M / 2
     finally:
         world.close()

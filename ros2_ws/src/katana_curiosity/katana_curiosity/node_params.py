@@ -58,9 +58,10 @@ PARAMS = (
     Param("seed", 0, "Seed of the strategy's random choices.", 0, 2**31 - 1),
     Param("stuck_reset", 3, "Reset after this many experiments in a row offering only the "
           "table (0: never).", 0, 1000),
-    Param("setting_changes", 3, "Resets in a row instead of a planned placement that is known "
-          "and leads to no unknown pair, or that left the offer unchanged the last time, before "
-          "the plan is followed anyway (0: never).", 0, 1000),
+    Param("setting_changes", 3, "Resets instead of a planned placement that is known and "
+          "leads to no unknown pair, or that left the offer unchanged the last time, since the "
+          "last experiment that taught the learner, before the plan is followed anyway "
+          "(0: never).", 0, 1000),
     Param("stop_when_all_known", True, "End the run once no (height, action) pair the arm "
           "can realise is unknown (false: keep planning on the known model)."),
     Param("unrealisable_after", 30, "A pair never offered in this many logged settings that "

@@ -8,6 +8,8 @@ node parameter.
 
 from __future__ import annotations
 
+import copy
+import math
 import threading
 import time
 from dataclasses import dataclass, replace
@@ -22,6 +24,7 @@ from katana_interfaces.action import PickAndPlace
 from katana_interfaces.msg import BlockArray, FoveaInstance
 from katana_interfaces.srv import FindPlacement, JudgePlacement, ObserveSetting, ResetWorld
 from rclpy.node import Node
+from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
@@ -94,6 +97,7 @@ class RobotEnvironment:
                                  JOINT_STATE_QOS, **kw)
         node.create_subscription(Bool, ARM_READY_TOPIC, self._on_arm_ready, STATE_QOS, **kw)
         self.instances: list[FoveaInstance] = []
+        self.offered_instances: list[FoveaInstance] = []
         #: the paper's setting counter i: settings observed in this run (resumes set it)
         self.settings_observed = 0
         self.observe_s = 0.0
@@ -291,27 +295,24 @@ class RobotEnvironment:
             raise Unrealisable("no_usable_instance",
                                "fovea/observe listed no instance with a block to move")
         self.instances = usable
+        self.offered_instances = list(usable)  # as the fovea offered them, unturned
         states = np.array([inst.state for inst in usable])
         actions = np.array([inst.action - 1 for inst in usable])
         return Setting.from_pairs(states, actions)
 
-    def place_planned(self, setting: Setting, choice: Choice, target_height: int) -> Choice:
+    def place_planned(self, setting: Setting, choice: Choice, target_height: int,
+                      turn_rad: float = 0.0) -> Choice:
         """Which instance of a planned pair to make: the first whose block, once placed, lies
         within the place reach of every height from the stack it makes up to `target_height`
         (core.skill.choose_base on the narrowest band), so that a stack grows where the height
-        the plan builds towards can be reached."""
-        hits = setting.indices_of(choice.state, choice.action)
-        if len(hits) < 2 or not self.config.place_reach_m:
-            return choice
-        where = [(self.instances[i].placement.position.x, self.instances[i].placement.position.y)
-                 for i in hits]
-        made = choice.state + 1
-        reach = list(self.config.place_reach_m)
-        if made < len(reach):
-            bands = reach[made:max(made, min(target_height, len(reach) - 1)) + 1]
-            reach[made] = (max(b[0] for b in bands), min(b[1] for b in bands))
-        best = hits[choose_base(where, choice.state, self.config.max_height + 1, tuple(reach))]
-        return replace(choice, index=int(best))
+        the plan builds towards can be reached. The block is placed turned by `turn_rad`
+        against the fovea (the block below) when it is not 0 (`core.robot_loop.build_turn`)."""
+        choice = within_reach(setting, choice, target_height, self.instances,
+                              self.config.place_reach_m, self.config.max_height)
+        if choice.index is not None:
+            offered = self.offered_instances[choice.index]
+            self.instances[choice.index] = turned(offered, turn_rad) if turn_rad else offered
+        return choice
 
     def moves_a_loose_block(self, choice: Choice) -> bool:
         """Whether a placement on the table would move a block that lies on the table itself
@@ -363,8 +364,9 @@ class RobotEnvironment:
         if label not in (-1, 1):
             raise ExperimentAborted("no_verdict", f"the judge gave no verdict (label {label})")
         available = sorted({int(i.state) for i in self.instances})
-        record = ExecutionRecord(_instance_record(instance), self.settings_observed, available,
-                                 moved, attempts, stages, instance)
+        offered = self.offered_instances[index] if index is not None else None
+        record = ExecutionRecord(_instance_record(instance, offered), self.settings_observed,
+                                 available, moved, attempts, stages, instance)
         return Outcome(label, record)
 
     # -- steps ---------------------------------------------------------------------------
@@ -527,11 +529,50 @@ def _cancel(handle) -> None:
         pass
 
 
-def _instance_record(inst: FoveaInstance) -> InstanceRecord:
+def within_reach(setting: Setting, choice: Choice, target_height: int,
+                 instances: list[FoveaInstance], place_reach_m, max_height: int) -> Choice:
+    """`choice` made at the first of its instances whose block, once placed, lies within the
+    place reach of every height from the stack it makes up to `target_height` (choose_base on
+    the narrowest band)."""
+    hits = setting.indices_of(choice.state, choice.action)
+    if len(hits) < 2 or not place_reach_m:
+        return choice
+    where = [(instances[i].placement.position.x, instances[i].placement.position.y)
+             for i in hits]
+    made = choice.state + 1
+    reach = list(place_reach_m)
+    if made < len(reach):
+        bands = reach[made:max(made, min(target_height, len(reach) - 1)) + 1]
+        reach[made] = (max(b[0] for b in bands), min(b[1] for b in bands))
+    best = hits[choose_base(where, choice.state, max_height + 1, tuple(reach))]
+    return replace(choice, index=int(best))
+
+
+def turned(instance: FoveaInstance, turn_rad: float) -> FoveaInstance:
+    """A copy of `instance` whose block is placed turned by `turn_rad` about the vertical."""
+    out = copy.deepcopy(instance)
+    q = instance.placement.orientation
+    rotation = Rotation.from_euler("z", turn_rad) * Rotation.from_quat([q.x, q.y, q.z, q.w])
+    o = out.placement.orientation
+    o.x, o.y, o.z, o.w = (float(v) for v in rotation.as_quat())
+    return out
+
+
+def _yaw(pose) -> float:
+    q = pose.orientation
+    return float(Rotation.from_quat([q.x, q.y, q.z, q.w]).as_euler("zyx")[0])
+
+
+def _instance_record(inst: FoveaInstance, offered: FoveaInstance | None = None) -> InstanceRecord:
+    """The record of an executed instance; `offered`: as the fovea offered it (the turn is the
+    difference of the two placements' yaws)."""
     p = inst.placement.position
+    turn = 0.0
+    if offered is not None and offered is not inst:
+        turn = math.remainder(_yaw(inst.placement) - _yaw(offered.placement), 2 * math.pi)
     return InstanceRecord(float(inst.pixel_u), float(inst.pixel_v), [bool(b) for b in inst.bits],
                           [float(v) for v in inst.features], [str(s) for s in inst.support_ids],
-                          [float(p.x), float(p.y), float(p.z)])
+                          [float(p.x), float(p.y), float(p.z)], turn)
 
 
 _CODE_NAMES = {getattr(_RESULT, n): n.lower() for n in dir(_RESULT)

@@ -1,7 +1,7 @@
-"""RobotEnvironment's choices that need no graph: where a planned pair is made."""
+"""RobotEnvironment's choices that need no graph: where a planned pair is made, and how a
+block placed turned is placed and recorded."""
 
 import math
-from types import SimpleNamespace
 
 import numpy as np
 from hypothesis import given
@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from katana_curiosity.core.environment import Setting
 from katana_curiosity.core.explorer import PLAN, Choice
 from katana_curiosity.core.skill import REACH_MARGIN_M
-from katana_curiosity.robot_environment import RobotEnvironment
+from katana_curiosity.robot_environment import _instance_record, turned, within_reach
 from katana_interfaces.msg import FoveaInstance
 from katana_manipulation.core.reach import place_reach_table
 
@@ -31,13 +31,11 @@ def test_a_planned_pair_is_made_where_the_plan_can_go_on_building(spots, state, 
     the one nearest to that reach."""
     instances = [instance(state, 1, r * math.cos(a), r * math.sin(a)) for r, a in spots]
     instances.insert(0, instance(state + 1, 2, 0.2, 0.0))  # another pair, first in scan order
-    env = SimpleNamespace(instances=instances, config=SimpleNamespace(
-        max_height=3, place_reach_m=PLACE_REACH_M))
     setting = Setting.from_pairs(np.array([i.state for i in instances]),
                                  np.array([i.action - 1 for i in instances]))
     choice = Choice(state, 0, PLAN, 1)
     target = max(goal, state + 1)
-    made = RobotEnvironment.place_planned(env, setting, choice, target)
+    made = within_reach(setting, choice, target, instances, PLACE_REACH_M, 3)
     assert (made.state, made.action, made.mode) == (state, 0, PLAN)
     bands = PLACE_REACH_M[state + 1:target + 1]
     near, far = max(b[0] for b in bands), min(b[1] for b in bands)
@@ -49,3 +47,29 @@ def test_a_planned_pair_is_made_where_the_plan_can_go_on_building(spots, state, 
     best = min(outside(r) for r in radii)
     assert outside(radii[made.index - 1]) == best
     assert made.index - 1 == min(k for k, r in enumerate(radii) if outside(r) == best)
+
+
+def _yaw(inst: FoveaInstance) -> float:
+    """The placement's yaw by the textbook formula (independent of the code's scipy path)."""
+    q = inst.placement.orientation
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+@given(st.floats(-math.pi, math.pi), st.floats(-0.5, 0.5), st.floats(0.1, 0.3),
+       st.floats(-0.15, 0.15))
+def test_a_turned_placement_differs_from_the_offered_one_by_its_yaw_alone(yaw, turn, x, y):
+    offered = instance(2, 6, x, y)
+    offered.placement.position.z = 0.09
+    offered.placement.orientation.z = math.sin(yaw / 2)
+    offered.placement.orientation.w = math.cos(yaw / 2)
+    offered.support_ids = ["red", "green"]
+    made = turned(offered, turn)
+    assert math.isclose(math.remainder(_yaw(made) - _yaw(offered) - turn, 2 * math.pi), 0.0,
+                        abs_tol=1e-9)
+    assert (made.placement.position.x, made.placement.position.y, made.placement.position.z) \
+        == (x, y, 0.09)
+    assert list(made.support_ids) == ["red", "green"] and made.action == 6
+    assert math.isclose(offered.placement.orientation.z, math.sin(yaw / 2))  # untouched
+    record = _instance_record(made, offered)
+    assert math.isclose(record.turn_rad, turn, abs_tol=1e-9)
+    assert _instance_record(offered, offered).turn_rad == 0.0

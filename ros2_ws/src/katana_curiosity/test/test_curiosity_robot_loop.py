@@ -605,3 +605,67 @@ def test_the_same_offer_and_stacks_with_more_movable_blocks_is_another_setting(t
     assert loop.run().startswith("done")
     assert [(r.mode, r.state) for r in loop.log.records] == [("plan", 0)] * 3
     assert arm.resets == 0
+
+
+class ScatterThenBase:
+    """After a reset: loose blocks, a new scene each time, offering the table and action 6 on a
+    block (known to stay, and it grows a two-stack). After that placement: a two-stack whose top
+    offers only action 1, known to fall, so no plan there leads on (and nothing else is
+    offered). A placement there leaves loose blocks again."""
+
+    def __init__(self) -> None:
+        self.resets = 0
+        self.on_base = False
+
+    def wait_until_current(self) -> None:
+        pass
+
+    def mark_scene_changed(self, experience: int | None = None) -> None:
+        pass
+
+    def stack_heights(self) -> tuple[int, ...]:
+        return (1, 2) if self.on_base else (1,) * (2 + self.resets)  # a new scene per scatter
+
+    def observe(self) -> Setting:
+        pairs = [(2, 0)] if self.on_base else [(0, 0), (1, 5)]
+        states, actions = zip(*pairs, strict=True)
+        return Setting.from_pairs(np.array(states), np.array(actions))
+
+    def execute(self, state: int, action: int, index: int | None = None) -> Outcome:
+        inst = InstanceRecord(1.0, 2.0, [False] * 5, [0.0] * 7, [], [0.2, 0.0, 0.015])
+        stays = state == 0 or action == 5
+        self.on_base = state == 1 and stays
+        return Outcome(1 if stays else -1, ExecutionRecord(inst, self.resets, [0, 1], "b1", 1,
+                                                           {}))
+
+    def blocks_out_of_reach(self) -> list[str]:
+        return []
+
+    def reset(self) -> str:
+        self.resets += 1
+        self.on_base = False
+        return "scattered"
+
+
+def test_a_cycle_of_a_known_placement_and_a_setting_change_reaches_the_bound(tmp_path) -> None:
+    """Each scatter offers a base that leads on (known, so nothing is learned), and the stack of
+    two it makes offers only a plan that leads nowhere. The setting changes are counted from
+    the last experiment that taught the learner, not from the last one made: after three of
+    them the plan on the stack of two is followed, where counting from the last experiment
+    would build a base and scatter again for ever."""
+    arm = ScatterThenBase()
+    loop, _ = make_loop(tmp_path, arm, max_experiments=5)
+    bank = loop.explorer.bank
+    for _ in range(40):
+        bank.update(0, 0, 1)
+        for a in range(6):
+            bank.update(1, a, 1 if a == 5 else -1)
+            bank.update(2, a, -1 if a == 0 else 1)
+    feasible = feasible_actions(3, 6, 1)
+    assert not (bank.unknown[:3] & feasible[:3]).any() and bank.unknown[3].all()
+    assert loop.run().startswith("done")
+    made = [(r.state, r.action) for r in loop.log.records]
+    assert made == [(1, 6)] * 4 + [(2, 1)], made
+    assert arm.resets == 3
+    assert [r.dropped_before for r in loop.log.records] == [
+        {}, *[{"no_route_to_unknown": 1}] * 3, {}]

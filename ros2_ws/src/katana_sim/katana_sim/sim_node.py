@@ -38,10 +38,12 @@ from katana_sim.outputs import FAST_WALL_CAP_S, SimOutputs
 from katana_sim.sim_params import PARAMS, cross_check, sim_config
 
 #: fast mode renders only while the arm stands out of the camera's view (PhysicsSim.arm_in_view)
-#: and has been idle this long (wall), so that the pause at the park pose where a task opens the
-#: fingers while it plans is rarely imaged: that grip steps the physics under blocks that have
-#: only just come to rest (docs/DESIGN.md, "The fast sim images only a scene ...")
-FAST_IMAGE_IDLE_S = 0.05
+#: and has been idle this long (wall): long enough that the next goal of a task that is still
+#: running usually comes first, so no image is spent on the pause between two of its motions.
+#: What such an image shows does not depend on when it is made: nothing moves while the sim is
+#: idle, and the fingers of an empty hand open and close clear of the blocks without physics
+#: steps (PhysicsSim.step), so blocks that have just come to rest cannot creep meanwhile.
+FAST_IMAGE_IDLE_S = 0.005
 #: ... and an arm left standing in view (a task that ended where it failed) after this long
 FAST_IMAGE_STANDING_S = 1.0
 FEEDBACK_PERIOD_S = 0.2  # simulated seconds between action feedback messages

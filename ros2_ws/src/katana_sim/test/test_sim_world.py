@@ -306,6 +306,33 @@ def test_a_still_scene_is_drawn_once_and_any_change_draws_it_anew(monkeypatch):
         w.close()
 
 
+def test_fingers_moved_out_of_view_draw_nothing_new_and_the_cache_is_what_a_draw_gives(
+        monkeypatch):
+    """The parked arm opening its fingers changes nothing the camera sees: the image is not
+    drawn again, and what is given back equals a fresh draw; the same fingers over the table
+    are drawn anew."""
+    w = PhysicsSim(SimConfig(num_blocks=3, seed=4))
+    try:
+        drawn = []
+        raw = w._raw_render
+        monkeypatch.setattr(w, "_raw_render", lambda *a: drawn.append(1) or raw(*a))
+        w.set_arm_positions(m.PARK_POSE, m.GRIPPER_CLOSED)
+        first = w.render()
+        w.set_arm_positions(m.PARK_POSE, m.GRIPPER_OPEN)
+        assert not w.arm_in_view()
+        again = w.render()
+        assert len(drawn) == 1 and again is first
+        assert np.array_equal(again, w.render(fresh=True))
+        over = [0.0, 1.234239, -1.075592, 1.729443, 0.0]  # tool at (0.2, 0, 0.1)
+        w.set_arm_positions(over, m.GRIPPER_CLOSED)
+        closed = w.render()
+        w.set_arm_positions(over, m.GRIPPER_OPEN)
+        opened = w.render()
+        assert len(drawn) == 4 and not np.array_equal(closed, opened)
+    finally:
+        w.close()
+
+
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.floats(0.05, 2.0), min_size=1, max_size=5),
        st.integers(0, 2**32 - 1), st.booleans(), st.lists(st.floats(-0.5, 3.0), max_size=20))

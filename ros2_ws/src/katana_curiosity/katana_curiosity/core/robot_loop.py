@@ -11,8 +11,10 @@ Policy (the paper's robot had a person for this; here it is explicit):
   again offers nothing again.
 - No experiment wasted: a planned placement whose outcome the learner already knows is made
   only if it leads towards an unknown pair (`leads_towards_unknown`); otherwise the setting
-  is changed (reset) instead, at most `setting_changes` times in a row before the plan is
-  followed anyway (a setting that no reset improves must not stop the run).
+  is changed (reset) instead, at most `setting_changes` times since the last experiment that
+  taught the learner (or the last plan so followed) before the plan is followed anyway (a
+  setting that no reset improves must not stop the run, nor a cycle of a known placement and
+  a reset).
 - A known plan made before in the same scene is made again only while a scene it led to, or
   one reachable from there by placements made before (as many as the deepest plan, never back
   into the scenes since the last experiment that taught the learner), offers a pair unknown now
@@ -37,6 +39,7 @@ Choices depend only on the seed and on what the environment reports, never on wa
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections import Counter
@@ -86,6 +89,33 @@ def feasible_actions(max_height: int, n_actions: int, table_action: int) -> np.n
     if n_actions == FOVEA_POINTS + 1 and max_height >= 1:
         feasible[1, FOVEA_POINTS - 1] = False
     return feasible
+
+
+#: the action only a stack whose top faces are turned against each other offers (1-based)
+TURNED_ACTION = FOVEA_POINTS
+#: a block placed to make a stack that is to offer TURNED_ACTION is turned by this against the
+#: one below: on the fovea, stacks of three with a top turned 5 degrees or more offered every
+#: action in 30 of 30, where square ones (2 mm and 0.6 degrees of placement error) offered
+#: action 5 in 14
+BUILD_TURN_RAD = math.radians(10.0)
+
+
+def build_turn(bank: PredictorBank, unknown: np.ndarray | None, choice: Choice,
+               goal: int | None) -> float:
+    """How far to turn the block of a planned placement against the one below: BUILD_TURN_RAD
+    for a known placement on a stack that makes the stack of the plan's goal height when
+    TURNED_ACTION is the only pair unknown there (`unknown`: the unknown pairs the arm can
+    realise), else 0. A stack built square offers that action only by the arm's placement
+    error, so a plan building towards it would be made again and again; while any other pair
+    there is unknown, every stack of that height offers something to learn, and stacks are
+    built square as the truth table's were. A query is placed as the fovea offers it (its
+    outcome is what is learned)."""
+    s, a = choice.state, choice.action
+    if (unknown is None or goal is None or s < 1 or goal != s + 1 or goal >= len(unknown)
+            or bank.unknown[s, a]):
+        return 0.0
+    alone = bool(unknown[goal, TURNED_ACTION - 1]) and int(unknown[goal].sum()) == 1
+    return BUILD_TURN_RAD if alone else 0.0
 
 
 def set_query_rule(bank: PredictorBank, alpha: float, theta: float) -> None:
@@ -206,8 +236,9 @@ class RobotEnvironment(Environment, Protocol):
 
     def reset(self) -> str: ...
 
-    # optional: place_planned(setting, choice, target_height) -> choice, which instance of a
-    # planned pair to make; stack_heights() -> the heights of the stacks last observed;
+    # optional: place_planned(setting, choice, target_height, turn_rad) -> choice, which
+    # instance of a planned pair to make, its block turned by turn_rad against the fovea;
+    # stack_heights() -> the heights of the stacks last observed;
     # moves_a_loose_block(choice) -> whether a table placement would move a loose block
 
 
@@ -226,7 +257,7 @@ class LoopPolicy:
     stuck_reset: int = 3  # experiments in a row offering only the table (0: never)
     backoff_s: float = 0.2  # pause after a drop, times the drops in a row
     max_backoff_s: float = 2.0
-    setting_changes: int = 3  # pointless plans answered by a reset, in a row (0: never)
+    setting_changes: int = 3  # pointless plans answered by a reset, until one teaches (0: never)
     stop_when_all_known: bool = True  # end the run once no pair the arm realises is unknown
     unrealisable_after: int = 30  # settings offering a height without a pair (0: never)
 
@@ -278,7 +309,8 @@ class RobotLoop:
         self.dropped_total: Counter[str] = Counter()  # this session
         self.resets = 0
         self._table_only = 0
-        self._setting_changes = 0  # in a row, since the last experiment
+        # since the last experiment that taught the learner or the last plan followed anyway
+        self._setting_changes = 0
         self.done_this_session = 0
         self.outcomes = PlanOutcomes(depth=explorer.bank.unknown.shape[0] - 1)
         self._offer: Offer = frozenset()
@@ -342,16 +374,27 @@ class RobotLoop:
 
     def _place_planned(self, setting, choice: Choice) -> Choice:
         """The environment's choice of instance, towards the plan's next goal (`_goal_above`);
-        a known placement that builds towards it is made square (`square_building`)."""
+        a known placement that builds towards it is made square (`square_building`), and
+        turned when the stack it makes is to offer TURNED_ACTION (`build_turn`)."""
         goal = self._goal_above(choice.state)
         if goal is None:
-            return self.environment.place_planned(setting, choice, choice.state + 1)
+            return self.environment.place_planned(setting, choice, choice.state + 1, 0.0)
         choice = square_building(self.explorer.bank, setting, choice)
-        return self.environment.place_planned(setting, choice, goal)
+        turn = build_turn(self.explorer.bank, self.unknown_realisable_pairs(), choice, goal)
+        return self.environment.place_planned(setting, choice, goal, turn)
 
     def _worth_making(self, strategy: Strategy, choice: Choice) -> str | None:
-        if not self.policy.setting_changes or self._setting_changes >= self.policy.setting_changes:
-            return None  # resets did not help (or are not wanted): follow the plan
+        """Why a planned placement is not to be made (the setting is changed instead), or
+        None; a plan refused after `setting_changes` changes that taught nothing is made."""
+        if not self.policy.setting_changes:
+            return None  # setting changes are not wanted: follow the plan
+        reason = self._refusal(strategy, choice)
+        if reason and self._setting_changes >= self.policy.setting_changes:
+            self._setting_changes = 0  # resets did not help: follow the plan, then count anew
+            return None
+        return reason
+
+    def _refusal(self, strategy: Strategy, choice: Choice) -> str | None:
         if self.all_known_at is not None:
             return None  # nothing is left unknown: no setting offers more than this plan
         unknown = self.explorer.bank.unknown
@@ -437,15 +480,19 @@ class RobotLoop:
             record = self.make_record(step, execution)
             self.log.append(record)  # OSError ends the loop: nothing may go unrecorded
         self.done_this_session += 1
-        self._setting_changes = 0
+        taught_it = taught(record, self.explorer.bank.rule)
+        if taught_it:
+            # setting changes are counted until the learner learns: a known placement made
+            # between two changes (a fresh scatter's base, built again and again) does not
+            # end the count, or the bound would never be reached
+            self._setting_changes = 0
         self._resets_since_experiment = 0
         self.dropped.clear()
         if self.realisability is not None:
             self.realisability.note(self._offer)
             self._plan_on_realisable()
         # a known placement that proved the learner wrong ends the chain as a query does
-        self.outcomes.made(self._scene, step.state, step.action,
-                           known=not taught(record, self.explorer.bank.rule))
+        self.outcomes.made(self._scene, step.state, step.action, known=not taught_it)
         self.environment.mark_scene_changed(record.index)
         self.on_experiment(record, step)
         # A scene that offers nothing but the table (a stack whose top is beyond reach and

@@ -56,6 +56,7 @@ class InstanceRecord:
     features: list[float]
     support_ids: list[str]
     placement: list[float]  # x, y, z of the placement point in the world frame, m
+    turn_rad: float = 0.0  # the block placed turned by this against the fovea (the block below)
 
 
 @dataclass(frozen=True)
@@ -213,7 +214,8 @@ def _instance(value: Any) -> InstanceRecord | None:
         if len(placement) != 3:
             raise RecordError("placement", f"needs x, y, z, got {len(placement)} values")
         return InstanceRecord(_float(value, "pixel_u"), _float(value, "pixel_v"), bits,
-                              _floats(value, "features"), ids, placement)
+                              _floats(value, "features"), ids, placement,
+                              _float(value, "turn_rad"))  # older logs: none, 0
     except RecordError as err:
         raise RecordError(f"instance.{err.field_name}", str(err).split(": ", 1)[1]) from None
 

@@ -266,7 +266,10 @@ DEVIATIONS = """\
   with the block below, and on an axis-aligned square one corner point cannot leave the hull
   alone: a corner leaves together with its neighbour. It occurs on skewed stacks of two and
   more in the runs; on a single block it cannot occur at all, so the truth leaves it
-  unmeasured and the learner's feasibility table leaves (1, 5) out of the plan.
+  unmeasured and the learner's feasibility table leaves (1, 5) out of the plan. When (h, 5) is
+  the only pair left unknown at a height, the loop places the block that makes that stack
+  turned by 10 degrees against the one below, so that the stack offers it (DESIGN, "Turned
+  for action 5").
 - **The skewed two-stack of Figure 14 cannot be built on the sim.** Every two-stack that
   stands offers action 6 on top: the fovea's 20 px probe square fits in any overlap of two top
   faces wider than half a block, and a narrower overlap puts the upper block's centre beyond

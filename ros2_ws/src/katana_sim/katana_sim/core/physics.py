@@ -103,10 +103,11 @@ class PhysicsSim:
         self._cid = p.connect(p.DIRECT)
         self._probe_cid: int | None = None  # the arm alone, for the free-space check
         self.physics_steps = 0  # steps made by the physics engine
-        self.kinematic_steps = 0  # steps the arm moved along its plan without physics
+        self.kinematic_steps = 0  # steps the arm or the fingers moved without physics
         # counts what can move the world but the arm's free moves: physics steps and teleports
         self._changes = 0
         self._horizon: tuple | None = None  # (trajectory, changes, last free step, held)
+        self._finger_horizon: tuple | None = None  # (gripper goal, free, changes if free)
         self._tmp = tempfile.TemporaryDirectory(prefix="katana_sim_")
         self._rng = np.random.default_rng(self.cfg.seed)
         self._trajectory: ctl.TrajectoryFollower | None = None
@@ -185,6 +186,8 @@ class PhysicsSim:
                              if self._pb(p.getCollisionShapeData, self.arm, i)]
         first = self.link_index[FIRST_REACHING_LINK]
         self._reaching_links = [i for i in self._probe_links if i >= first]
+        # the arm joints (ALL_JOINTS order) whose links come before the reaching ones
+        self._joints_before_reaching = sum(1 for i in self._all_idx if i < first)
 
     def close(self) -> None:
         for cid in (self._cid, self._probe_cid):
@@ -418,8 +421,11 @@ class PhysicsSim:
 
         While the arm moves through free space (`_free_steps`) the steps are made without
         physics: the arm takes its planned state, where its motors track it to within their lag,
-        the block it holds rides in its grip, and nothing else could have moved."""
-        traj = self._trajectory
+        the block it holds rides in its grip, and nothing else could have moved. So do the
+        fingers of an empty hand that open or close clear of every block
+        (`_free_finger_steps`): physics steps there would only let blocks that have just come
+        to rest creep, by amounts an image made before or after the grip would tell apart."""
+        traj, grip = self._trajectory, self._gripper
         if traj is not None:
             free, held = self._free_steps(traj, n)
             if free:
@@ -428,6 +434,16 @@ class PhysicsSim:
                 self._move_kinematic(free, q[0], v[0], held)
                 self._check_controllers(q[0])
                 n -= free
+        elif grip is not None:
+            free = self._free_finger_steps(grip, n)
+            if free:
+                self._move_fingers_kinematic(free, grip)
+                self._check_controllers()
+                n -= free
+                if self._gripper is None:  # done clear of everything: the rest stands still
+                    self._steps += n
+                    self.kinematic_steps += n
+                    n = 0
         if n > 0:
             self._step_physics(n)
 
@@ -515,6 +531,62 @@ class PhysicsSim:
         if last > 0:  # later calls find it without checking again while nothing else moves
             self._horizon = (traj, self._changes, self._steps + last, held)
         return min(n, last), held
+
+    def _free_finger_steps(self, grip, n: int) -> int:
+        """How many of the next n steps the fingers of an empty hand may make without physics,
+        the arm standing: every block at rest, no block touching the hand, and the arm, posed
+        with its fingers at samples of their way to the goal no further apart than
+        FREE_SPACE_MARGIN_M / 2 at the arm's longest lever, keeping FREE_SPACE_MARGIN_M from
+        every block and from the table top (`_clear`). The steps run to the end of the fingers'
+        ramp. The check is made once per goal: a goal found not free is stepped in physics to
+        its end (a grasp), one found free is checked again only after something else moved."""
+        if not self.cfg.kinematic_free_space:
+            return 0
+        end_step = grip.start_step + math.ceil(grip.judge.ramp_s / self.dt)
+        horizon = self._finger_horizon
+        if horizon is not None and horizon[0] is grip:
+            if not horizon[1]:  # found not free: the goal is stepped in physics to its end
+                return 0
+            if horizon[2] == self._changes:
+                return min(n, max(0, end_step - self._steps))
+        self._finger_horizon = (grip, False)
+        if self._steps >= end_step or self._held_block() != ():
+            return 0
+        if not self.blocks_at_rest():
+            return 0
+        margin = FREE_SPACE_MARGIN_M
+        boxes = np.array([self._pb(p.getAABB, body, -1) for body in self.blocks.values()])
+        lo, hi = boxes[:, 0] - margin, boxes[:, 1] + margin
+        if not self._clear(self._cid, self.arm, (), lo, hi):
+            return 0
+        pos = self.joint_state()[0]
+        start, goal = float(pos[5:].mean()), grip.judge.goal
+        samples = np.linspace(start, goal, 2 + int(abs(goal - start) / (margin / 2 / ARM_LEVER_M)))
+        probe, arm = self._probe_cid, self._probe_arm
+        p.resetJointStatesMultiDof(arm, self._arm_idx, [[v] for v in pos[:5]],
+                                   physicsClientId=probe)
+        for angle in samples:
+            p.resetJointStatesMultiDof(arm, self._finger_idx, [[angle]] * len(self._finger_idx),
+                                       physicsClientId=probe)
+            if not self._clear(probe, arm, (), lo, hi):
+                return 0
+        self._finger_horizon = (grip, True, self._changes)
+        return min(n, end_step - self._steps)
+
+    def _move_fingers_kinematic(self, n: int, grip) -> None:
+        """n steps without physics: both fingers take the place the finger speed limit gives
+        them (the gripper's ideal path; still at its end); nothing else moves."""
+        self._steps += n
+        self.kinematic_steps += n
+        elapsed = self.elapsed(grip)
+        angle = grip.target(elapsed)
+        speed = 0.0 if elapsed >= grip.judge.ramp_s else math.copysign(
+            grip.judge.speed, grip.judge.goal - grip.judge.start)
+        fingers = len(self._finger_idx)
+        self._pb(p.resetJointStatesMultiDof, self.arm, self._finger_idx, [[angle]] * fingers,
+                 [[speed]] * fingers)
+        self._targets[5:] = angle
+        self._target_vel[5:] = 0.0
 
     def _held_block(self) -> tuple[int, tuple, tuple] | tuple[()] | None:
         """The block held between both finger pads, moving with the gripper, as (body, pose
@@ -658,10 +730,14 @@ class PhysicsSim:
         return img
 
     def _scene_key(self) -> tuple:
-        """Everything a render shows that can change: the block poses and the arm's joints."""
+        """Everything a render shows that can change: the block poses and the arm's joints;
+        of an arm out of view (`arm_in_view`), only the joints that move the links before the
+        reaching ones (the fingers opening at the park pose change nothing in the image)."""
         poses = tuple(self._pb(p.getBasePositionAndOrientation, body)
                       for body in self.blocks.values())
         joints = tuple(s[0] for s in self._pb(p.getJointStates, self.arm, self._all_idx))
+        if not self.arm_in_view():
+            joints = joints[:self._joints_before_reaching]
         return tuple(self.blocks), poses, joints
 
     def ground_truth(self) -> list[BlockState]:
