@@ -95,9 +95,9 @@ For each claim a study leaves INCONCLUSIVE, `katana-robot claims` says how many 
 decide it, from the spread of its seeds. A 12-seed study of the previous version of the loop
 put the fewest, 31, on Q1 learning the truth faster than Random after 30 experiments (the study
 above puts about 290 on it); the runs below are q1 and random over 31 seeds of 30 experiments
-each, made once on that version to try (the claims of 60 and 120 experiments are not evaluated
-on them). Such a count comes from the effect a study saw; where that effect is noise around
-zero, the count is far too low, and the verdict below says so."""
+each, made once to try (the claims of 60 and 120 experiments are not evaluated on them). Such a
+count comes from the effect a study saw; where that effect is noise around zero, the count is
+far too low, and the verdict below says so."""
 AFTER30_CLAIMS = "The paper's claims of section 3.3, against these runs:"
 
 TRUTH_ABOUT = """\
