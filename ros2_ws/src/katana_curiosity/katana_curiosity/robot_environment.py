@@ -42,7 +42,7 @@ from .core.robot_loop import (
     leave_until_moved,
 )
 from .core.run_record import InstanceRecord
-from .core.skill import choose_base
+from .core.skill import choose_base, outside_band_m, reach_band
 
 #: block memory's output: the blocks it knows, with levels and poses
 BLOCKS_TOPIC = "memory/blocks"
@@ -277,7 +277,10 @@ class RobotEnvironment:
 
     def observe(self) -> Setting:
         start = time.perf_counter()
-        request = ObserveSetting.Request(max_height=self.config.max_height)
+        # the fovea answers from this memory/blocks or a later one, never from one before it
+        blocks = self.wait_for_blocks()
+        request = ObserveSetting.Request(max_height=self.config.max_height,
+                                         blocks_sequence=blocks.sequence)
         self.settings_observed += 1
         response = self._call(self.observe_client, request)
         self.observe_s = time.perf_counter() - start
@@ -288,7 +291,6 @@ class RobotEnvironment:
                   and 1 <= inst.action <= self.config.n_actions]
         # Available means executable (paper 2.2: availability comes from the known blocks): a
         # placement needs a block the arm can pick that is not part of the target stack.
-        blocks = self.wait_for_blocks()
         self.observed_blocks = blocks
         usable = [inst for inst in usable if self._choose_block(blocks, inst, set())]
         if not usable:
@@ -313,6 +315,14 @@ class RobotEnvironment:
             offered = self.offered_instances[choice.index]
             self.instances[choice.index] = turned(offered, turn_rad) if turn_rad else offered
         return choice
+
+    def out_of_reach_for(self, choice: Choice, target_height: int) -> bool:
+        """Whether the placement chosen for `choice` (`place_planned`) makes a stack on which
+        the heights up to `target_height` cannot be placed (`leaves_goal_out_of_reach`)."""
+        if choice.index is None:
+            return False
+        return leaves_goal_out_of_reach(self.instances[choice.index], choice.state,
+                                        target_height, self.config.place_reach_m)
 
     def moves_a_loose_block(self, choice: Choice) -> bool:
         """Whether a placement on the table would move a block that lies on the table itself
@@ -366,7 +376,7 @@ class RobotEnvironment:
         available = sorted({int(i.state) for i in self.instances})
         offered = self.offered_instances[index] if index is not None else None
         record = ExecutionRecord(_instance_record(instance, offered), self.settings_observed,
-                                 available, moved, attempts, stages, instance)
+                                 available, moved, attempts, stages, instance, index)
         return Outcome(label, record)
 
     # -- steps ---------------------------------------------------------------------------
@@ -391,7 +401,8 @@ class RobotEnvironment:
 
     def _find(self, state: int, action: int) -> FoveaInstance:
         # plain ints: the generated C conversion aborts the process on a numpy integer
-        request = FindPlacement.Request(state=int(state), action=int(action) + 1)
+        request = FindPlacement.Request(state=int(state), action=int(action) + 1,
+                                        blocks_sequence=self.wait_for_blocks().sequence)
         response = self._call(self.find_client, request)
         if not response.found:
             raise Unrealisable("no_placement", f"no fovea location realises (s={state}, "
@@ -541,11 +552,24 @@ def within_reach(setting: Setting, choice: Choice, target_height: int,
              for i in hits]
     made = choice.state + 1
     reach = list(place_reach_m)
-    if made < len(reach):
-        bands = reach[made:max(made, min(target_height, len(reach) - 1)) + 1]
-        reach[made] = (max(b[0] for b in bands), min(b[1] for b in bands))
+    band = reach_band(made, target_height, reach)
+    if band is not None:
+        reach[made] = band
     best = hits[choose_base(where, choice.state, max_height + 1, tuple(reach))]
     return replace(choice, index=int(best))
+
+
+def leaves_goal_out_of_reach(instance: FoveaInstance, state: int, target_height: int,
+                             place_reach_m) -> bool:
+    """Whether the block of a placement on a stack of height `state` at `instance`, once
+    placed, lies where no block can be placed on the stack it makes at some height up to
+    `target_height` (outside the narrowest of those place reach bands): the fovea offers no
+    pair on such a stack, so a plan through it cannot reach its goal."""
+    band = reach_band(state + 1, target_height, list(place_reach_m)) if place_reach_m else None
+    if band is None or target_height <= state:
+        return False
+    position = instance.placement.position
+    return outside_band_m((position.x, position.y), band) > 0.0
 
 
 def turned(instance: FoveaInstance, turn_rad: float) -> FoveaInstance:

@@ -9,7 +9,12 @@ from hypothesis import strategies as st
 from katana_curiosity.core.environment import Setting
 from katana_curiosity.core.explorer import PLAN, Choice
 from katana_curiosity.core.skill import REACH_MARGIN_M
-from katana_curiosity.robot_environment import _instance_record, turned, within_reach
+from katana_curiosity.robot_environment import (
+    _instance_record,
+    leaves_goal_out_of_reach,
+    turned,
+    within_reach,
+)
 from katana_interfaces.msg import FoveaInstance
 from katana_manipulation.core.reach import place_reach_table
 
@@ -47,6 +52,22 @@ def test_a_planned_pair_is_made_where_the_plan_can_go_on_building(spots, state, 
     best = min(outside(r) for r in radii)
     assert outside(radii[made.index - 1]) == best
     assert made.index - 1 == min(k for k, r in enumerate(radii) if outside(r) == best)
+
+
+@given(st.floats(0.0, 0.35), st.floats(-math.pi, math.pi), st.integers(0, 3),
+       st.integers(0, 4))
+def test_a_placement_leaves_its_goal_out_of_reach_when_a_height_to_build_cannot_be_placed_on(
+        radius, angle, state, goal):
+    """Out of reach for the goal exactly when the block, once placed, stands outside the place
+    reach of some height from the stack it makes up to the goal (heights the reach table
+    lists), each band checked on its own."""
+    inst = instance(state, 1, radius * math.cos(angle), radius * math.sin(angle))
+    placed = math.hypot(inst.placement.position.x, inst.placement.position.y)
+    heights = range(state + 1, min(goal, len(PLACE_REACH_M) - 1) + 1)
+    expected = goal > state and any(
+        not PLACE_REACH_M[h][0] <= placed <= PLACE_REACH_M[h][1] for h in heights)
+    assert leaves_goal_out_of_reach(inst, state, goal, PLACE_REACH_M) == expected
+    assert not leaves_goal_out_of_reach(inst, state, goal, ())  # no reach table: never
 
 
 def _yaw(inst: FoveaInstance) -> float:

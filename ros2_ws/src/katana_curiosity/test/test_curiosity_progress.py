@@ -90,6 +90,22 @@ def test_a_plan_leads_somewhere_while_what_it_led_to_offers_an_unknown_pair():
     assert plans.leads_nowhere("a", 0, 0, NONE_UNKNOWN)
 
 
+def test_a_placement_that_leads_nowhere_by_where_it_stood_is_no_outcome_of_the_plan():
+    """A block placed where nothing can be placed on the stack it makes (out of reach) leads to
+    a scene that offers only known pairs; made with leads=False, that outcome is not recorded:
+    the plan gets its try in that scene again, while the scene still joins the chain."""
+    plans = PlanOutcomes()
+    plans.observed(*A)
+    plans.made("a", 0, 0, leads=False)
+    plans.observed(*B)
+    assert plans.chain == ("a", "b") and not plans.tried("a", 0, 0)
+    assert not plans.leads_nowhere("a", 0, 0, unknown_at((2, 4)))
+    at(plans, A)
+    walk(plans, A, (0, 0), B)  # the same outcome recorded: now it leads nowhere
+    at(plans, A)
+    assert plans.leads_nowhere("a", 0, 0, unknown_at((2, 4)))
+
+
 def test_a_cycle_back_into_the_chain_is_no_way_forward():
     """Build a two-stack the arm cannot use (b), take it down again (back to a): in a, the
     plan into b is refused, since from b the only way on leads back into the chain."""

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from katana_curiosity.core.environment import Outcome, Setting
-from katana_curiosity.core.explorer import PLAN, Choice, Explorer
+from katana_curiosity.core.explorer import PLAN, QUERY, Choice, Explorer, Step
 from katana_curiosity.core.predictors import GAMMA
 from katana_curiosity.core.robot_loop import (
     GIVE_UP,
@@ -570,6 +570,56 @@ def test_a_known_table_placement_beside_a_stack_of_one_changes_the_setting(tmp_p
     [record] = loop.log.records
     assert arm.resets == 1 and record.dropped_before == {"no_route_to_unknown": 1}
     assert (record.mode, record.state, record.action) == ("plan", 1, 6)
+
+
+def test_a_known_placement_making_a_stack_out_of_reach_of_its_goal_changes_the_setting(
+        tmp_path) -> None:
+    """The loose block that action 6 would build on lies where a block cannot be placed on a
+    two-stack (on the sim, a three-stack built there offered nothing at height 3, and the same
+    plan in that scene was then refused as leading nowhere, in a scene where it would have led
+    on). The plan is refused for its reach (`goal_out_of_reach`), the setting changes, and the
+    same plan is made on the next setting's block, which is within reach."""
+
+    class FarBase(SettingUntilReset):
+        asked: list[tuple[int, int, int]] = []
+
+        def out_of_reach_for(self, choice: Choice, target_height: int) -> bool:
+            self.asked.append((choice.state, choice.action, target_height))
+            return choice.state == 1 and not self.resets
+
+    arm = FarBase([(0, 0), (1, 5)], [(0, 0), (1, 5)], stays=lambda s, a: s == 0 or a == 5)
+    loop = _known_up_to_height_one(arm, tmp_path)
+    assert loop.run().startswith("done")
+    [record] = loop.log.records
+    assert arm.resets == 1 and record.dropped_before == {"goal_out_of_reach": 1}
+    assert (record.mode, record.state, record.action) == ("plan", 1, 6)
+    assert (1, 5, 2) in arm.asked  # asked about the plan's goal: the unknown height 2
+
+
+def test_a_stable_placement_out_of_reach_of_its_own_height_records_no_outcome(tmp_path) -> None:
+    """After a placement, the loop asks the environment whether the stack it made stands where
+    nothing can be placed on it (`out_of_reach_for` the stack's own height, on the instance
+    made); such an outcome says where the block stood, not where the plan leads, and is not
+    recorded (`PlanOutcomes.made(..., leads=False)`). A fall, or an instance found rather than
+    offered, is recorded as ever."""
+
+    class Reach(SettingUntilReset):
+        asked: list[tuple[Choice, int]] = []
+
+        def out_of_reach_for(self, choice: Choice, target_height: int) -> bool:
+            self.asked.append((choice, target_height))
+            return True
+
+    arm = Reach([(0, 0)], [(0, 0)], stays=lambda s, a: True)
+    loop = _known_up_to_height_one(arm, tmp_path)
+    inst = InstanceRecord(1.0, 2.0, [False] * 5, [0.0] * 7, [], [0.2, 0.0, 0.015])
+    step = Step(1, 4, QUERY, 1, 0.0, 0.0)
+    assert loop._built_out_of_reach(step, ExecutionRecord(inst, 0, [0, 1], "b1", 1, index=3))
+    assert arm.asked == [(Choice(1, 4, QUERY, 3), 2)]
+    assert not loop._built_out_of_reach(replace(step, label=-1),
+                                        ExecutionRecord(inst, 0, [0, 1], "b1", 1, index=3))
+    assert not loop._built_out_of_reach(step, ExecutionRecord(inst, 0, [0, 1], "b1", 1))
+    assert len(arm.asked) == 1
 
 
 def test_a_known_table_placement_with_too_few_blocks_for_the_way_up_changes_the_setting(

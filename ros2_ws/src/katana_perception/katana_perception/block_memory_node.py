@@ -59,6 +59,7 @@ class BlockMemoryNode(Node):
         self.experience = -1  # index of the last curiosity/experience handled
         self.levels_version = 0  # counts experiences and changes of the remembered levels
         self.settled_frames = 0
+        self.sequence = 0  # arrays published (BlockArray.sequence)
         self.pub = self.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
         self.marker_pub = self.create_publisher(MarkerArray, "memory/markers", STATE_QOS)
         self.create_subscription(BlockArray, "perception/detections", self.on_detections,
@@ -167,6 +168,8 @@ class BlockMemoryNode(Node):
         msg = blocks_to_msg(blocks, header)
         msg.experience, msg.levels_version = self.experience, self.levels_version
         msg.settled_frames = self.settled_frames
+        self.sequence += 1
+        msg.sequence = self.sequence
         self.pub.publish(msg)
         self.marker_pub.publish(block_markers(msg))
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import colorsys
 import math
 import sys
+import threading
 
 import numpy as np
 from geometry_msgs.msg import Point
@@ -56,6 +57,8 @@ PARAMS = (
     Param("clearance", 0.005, "Free margin around a placed block, m.", 0.0, 0.1),
     Param("max_height", 3, "Highest stack offered for placement.", 0, 32),
     Param("table_yaw", 0.0, "Yaw of blocks placed on the table, rad.", -math.pi, math.pi),
+    Param("blocks_wait_s", 2.0, "Longest wait for the memory/blocks a request names "
+          "(blocks_sequence) before it is refused, s.", 0.0, 60.0, live=True),
     Param("mask_source", "memory", "'memory': block pixels are the remembered top faces "
           "re-projected; 'image': visible top blocks use their segmented pixels.",
           choices=("memory", "image")),
@@ -103,6 +106,8 @@ class FoveaNode(Node):
 
         self.calibration = None
         self.blocks = None
+        self.blocks_sequence = 0  # BlockArray.sequence of `blocks`
+        self._blocks_arrived = threading.Condition()
         self.rgb = None
         self.setting = 0
         self._key = None
@@ -145,7 +150,21 @@ class FoveaNode(Node):
             self.setting += 1
             self._key = (key, poses)
             self._scene = None
-        self.blocks = blocks
+        with self._blocks_arrived:
+            self.blocks, self.blocks_sequence = blocks, int(msg.sequence)
+            self._blocks_arrived.notify_all()
+
+    def _await_blocks(self, sequence: int) -> None:
+        """Until the memory/blocks numbered `sequence` (or a later one) is in: the asker waited
+        for it, and this node's subscription may not have taken it in yet (an answer from the one
+        before would depend on thread timing). NotFound after blocks_wait_s."""
+        wait_s = float(self.params["blocks_wait_s"])
+        with self._blocks_arrived:
+            if not self._blocks_arrived.wait_for(lambda: self.blocks_sequence >= sequence,
+                                                 wait_s):
+                raise NotFound(f"memory/blocks number {sequence} not received within "
+                               f"{wait_s:g} s (blocks_wait_s); the last was number "
+                               f"{self.blocks_sequence}")
 
     # ------------------------------------------------------------------ services
     def _current_scene(self) -> FoveaScene:
@@ -168,6 +187,7 @@ class FoveaNode(Node):
 
     def on_observe(self, req: ObserveSetting.Request, res: ObserveSetting.Response):
         try:
+            self._await_blocks(int(req.blocks_sequence))
             insts = self._current_scene().observe(max_height=int(req.max_height))
         except NotFound as err:
             res.success, res.message = False, str(err)
@@ -192,6 +212,7 @@ class FoveaNode(Node):
                            f"in 1..{N_ACTIONS}")
             return res
         try:
+            self._await_blocks(int(req.blocks_sequence))
             inst = self._current_scene().find(int(req.state), int(req.action))
         except NotFound as err:
             res.found, res.message = False, str(err)

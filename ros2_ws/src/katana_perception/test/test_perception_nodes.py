@@ -7,6 +7,7 @@ import math
 import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -358,6 +359,8 @@ def test_block_memory_numbers_its_arrays_with_the_last_experience(ros):
         n = len(world)
         assert (world[-1].experience, world[-1].settled_frames) == (7, frames)
         assert world[-1].levels_version == version
+    # every array published is numbered one past the one before (the fovea's ordering)
+    assert [m.sequence for m in world] == list(range(1, len(world) + 1))
     fresh.levels_version = version - 1  # on other levels: folded, not counted as settled
     pub.publish(fresh)
     assert ros.spin_until(lambda before=n: len(world) > before)
@@ -404,6 +407,47 @@ def test_fovea_node_services(ros):
     ok = ros.call(find, FindPlacement.Request(state=2, action=6))
     assert ok.found and list(ok.instance.support_ids) == ["green", "blue"]
     assert ok.instance.placement.position.z == pytest.approx(0.075)
+
+
+def test_fovea_answers_from_the_memory_blocks_the_request_names(ros):
+    """The learner waits for a memory/blocks and asks the fovea about it: the fovea's own
+    subscription may not have taken that array in yet. A request naming array 2 while the fovea
+    holds array 1 is answered only once array 2 is in, and from it; one naming an array that
+    never comes is refused after blocks_wait_s, saying so."""
+    fovea = ros.make(FoveaNode, blocks_wait_s=10.0)
+    observe = ros.helper.create_client(ObserveSetting, "fovea/observe")
+    pub = ros.helper.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
+    loose = blocks_msg([Block("red", "red", 0.18, 0.08, 0.3),
+                        Block("green", "green", 0.22, -0.08, -0.2)])
+    loose.sequence = 1
+    pub.publish(loose)
+    ros.camera_info()
+    for _ in range(50):
+        res = ros.call(observe, ObserveSetting.Request(max_height=255, blocks_sequence=1))
+        if res.success:
+            break
+        ros.camera_info()
+    assert res.success and {i.state for i in res.instances} == {0, 1}
+    future = observe.call_async(ObserveSetting.Request(max_height=255, blocks_sequence=2))
+    assert not ros.spin_until(future.done, timeout_s=0.5)  # array 2 is not in: no answer yet
+    stacked = blocks_msg([Block("red", "red", 0.18, 0.08, 0.3),
+                          Block("green", "green", 0.22, -0.08, -0.2),
+                          Block("blue", "blue", 0.22, -0.08, -0.1, support="green")])
+    stacked.sequence = 2
+    pub.publish(stacked)
+    assert ros.spin_until(future.done)
+    res = future.result()
+    assert res.success and {i.state for i in res.instances} == {0, 1, 2}
+    fovea.set_parameters([Parameter("blocks_wait_s", value=0.2)])
+    start = time.monotonic()
+    res = ros.call(observe, ObserveSetting.Request(max_height=255, blocks_sequence=9))
+    assert not res.success and time.monotonic() - start >= 0.2
+    assert "number 9" in res.message and "blocks_wait_s" in res.message
+    find = ros.helper.create_client(FindPlacement, "fovea/find_placement")
+    res = ros.call(find, FindPlacement.Request(state=2, action=6, blocks_sequence=9))
+    assert not res.found and "number 9" in res.message
+    ok = ros.call(find, FindPlacement.Request(state=2, action=6, blocks_sequence=2))
+    assert ok.found and list(ok.instance.support_ids) == ["green", "blue"]
 
 
 def test_pipeline_image_to_instances(ros):

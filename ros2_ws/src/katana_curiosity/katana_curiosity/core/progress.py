@@ -114,8 +114,12 @@ class PlanOutcomes:
     _chain_ends: bool = False  # the last placement was on an unknown pair
     _known_made: int = 0  # known placements made in the chain
 
-    def made(self, scene: Scene, height: int, action: int, known: bool = True) -> None:
-        self._pending = (scene, int(height), int(action))
+    def made(self, scene: Scene, height: int, action: int, known: bool = True,
+             leads: bool = True) -> None:
+        """A placement was made in `scene`; `known`: its pair was known and it came out as
+        predicted; `leads` False: where it led says nothing of the plan (its scene is noted in
+        the chain, but no edge is recorded)."""
+        self._pending = (scene, int(height), int(action)) if leads else None
         self._chain_ends = not known
         self._known_made += bool(known)
 

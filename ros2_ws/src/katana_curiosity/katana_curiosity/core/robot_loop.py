@@ -24,7 +24,9 @@ Policy (the paper's robot had a person for this; here it is explicit):
   that could only move a loose block; nor a known placement on a stack that would leave too
   few movable blocks to reach the next unknown height (`progress.blocks_short`:
   `too_few_blocks`), nor a known table placement in a setting that already offers a stack of
-  one to build on (`table_beside_a_base`: it lowers a stack for a base that is there). The
+  one to build on (`table_beside_a_base`: it lowers a stack for a base that is there), nor a
+  known placement that makes a stack standing outside the place reach of a height it is to
+  be built up to (`goal_out_of_reach`: the fovea offers nothing on its top there). The
   best other plan worth making is made instead, and only when there is none is the setting
   changed (within the same `setting_changes` bound).
 - A pair never offered in `unrealisable_after` logged settings offering its height is one the
@@ -217,6 +219,7 @@ class ExecutionRecord:
     attempts: int
     stage_s: dict[str, float] = field(default_factory=dict)
     message: Any = None  # the environment's own form of the instance (a FoveaInstance)
+    index: int | None = None  # the instance's index in the observed setting (None: found)
 
 
 class RobotEnvironment(Environment, Protocol):
@@ -238,13 +241,16 @@ class RobotEnvironment(Environment, Protocol):
 
     # optional: place_planned(setting, choice, target_height, turn_rad) -> choice, which
     # instance of a planned pair to make, its block turned by turn_rad against the fovea;
+    # out_of_reach_for(choice, target_height) -> whether the stack that placement makes cannot
+    # be built on up to target_height (no block can be placed on it there);
     # stack_heights() -> the heights of the stacks last observed;
     # moves_a_loose_block(choice) -> whether a table placement would move a loose block
 
 
 #: why the loop changed the setting instead of making a planned placement (NoRouteToUnknown)
 SETTING_CHANGES = frozenset({"no_route_to_unknown", "plan_leads_nowhere", "detour_too_long",
-                             "table_to_table", "too_few_blocks", "table_beside_a_base"})
+                             "table_to_table", "too_few_blocks", "table_beside_a_base",
+                             "goal_out_of_reach"})
 
 #: drops that leave the setting as it was: trying it again can only fail again
 STILL_SETTING_REASONS = frozenset({"no_usable_instance"})
@@ -399,11 +405,14 @@ class RobotLoop:
             return None  # nothing is left unknown: no setting offers more than this plan
         unknown = self.explorer.bank.unknown
         if not unknown[choice.state, choice.action]:
+            goal = self._goal_above(choice.state)
+            if goal is not None and getattr(self.environment, "out_of_reach_for",
+                                            lambda *_: False)(choice, goal):
+                return "goal_out_of_reach"
             if self.outcomes.detour_too_long:
                 return "detour_too_long"
             if self.outcomes.leads_nowhere(self._scene, choice.state, choice.action, unknown):
                 return "plan_leads_nowhere"
-            goal = self._goal_above(choice.state)
             if (self._movable is not None and goal is not None
                     and blocks_short(choice.state, goal, self._movable)):
                 return "too_few_blocks"
@@ -412,6 +421,15 @@ class RobotLoop:
         if getattr(self.environment, "moves_a_loose_block", lambda _: False)(choice):
             return "table_to_table"  # a new stack of one where one already lies: no change
         return None if leads_towards_unknown(strategy, choice) else "no_route_to_unknown"
+
+    def _built_out_of_reach(self, step: Step, execution: ExecutionRecord) -> bool:
+        """Whether the experiment's block stayed where no block can be placed on the stack it
+        made (`out_of_reach_for` that stack's own height)."""
+        check = getattr(self.environment, "out_of_reach_for", None)
+        if check is None or execution.index is None or step.label != 1:
+            return False
+        return bool(check(Choice(step.state, step.action, step.mode, execution.index),
+                          step.state + 1))
 
     def _everything_known(self) -> bool:
         """Whether no pair the arm can realise is unknown (said once, in the log)."""
@@ -491,8 +509,11 @@ class RobotLoop:
         if self.realisability is not None:
             self.realisability.note(self._offer)
             self._plan_on_realisable()
-        # a known placement that proved the learner wrong ends the chain as a query does
-        self.outcomes.made(self._scene, step.state, step.action, known=not taught_it)
+        # a known placement that proved the learner wrong ends the chain as a query does; a
+        # stack made where nothing can be placed on it tells where it stood, not where the
+        # plan leads (the same plan in the same scene builds it elsewhere next time)
+        self.outcomes.made(self._scene, step.state, step.action, known=not taught_it,
+                           leads=not self._built_out_of_reach(step, execution))
         self.environment.mark_scene_changed(record.index)
         self.on_experiment(record, step)
         # A scene that offers nothing but the table (a stack whose top is beyond reach and

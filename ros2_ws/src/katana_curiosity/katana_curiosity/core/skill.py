@@ -128,6 +128,27 @@ class StackingSkill:
 REACH_MARGIN_M = 0.01
 
 
+def reach_band(made: int, target_height: int,
+               place_reach_m: Sequence[tuple[float, float]]) -> tuple[float, float] | None:
+    """The (near, far) radius from the pan axis within which a stack of height `made` must stand
+    for blocks to be placed on it at every height from `made` up to `target_height`: the
+    narrowest of those heights' place reach bands; None when `made` is beyond the table."""
+    if made >= len(place_reach_m):
+        return None
+    top = max(made, min(target_height, len(place_reach_m) - 1))
+    bands = place_reach_m[made:top + 1]
+    return max(b[0] for b in bands), min(b[1] for b in bands)
+
+
+def outside_band_m(xy: tuple[float, float], band: tuple[float, float],
+                   margin_m: float = 0.0) -> float:
+    """How far (m) the point `xy` lies outside the radius band `band` shrunk by `margin_m` on
+    both sides; 0 inside."""
+    radius = math.hypot(*xy)
+    near, far = band
+    return max(near + margin_m - radius, radius - (far - margin_m), 0.0)
+
+
 def choose_base(
     placements_xy: Sequence[tuple[float, float]],
     state: int,
@@ -145,13 +166,9 @@ def choose_base(
     made = state + 1
     if made >= target_height or made >= len(place_reach_m):
         return 0
-    near, far = place_reach_m[made]
-
-    def outside_m(i: int) -> float:
-        radius = math.hypot(*placements_xy[i])
-        return max(near + margin_m - radius, radius - (far - margin_m), 0.0)
-
-    return min(range(len(placements_xy)), key=lambda i: (outside_m(i), i))
+    band = place_reach_m[made]
+    return min(range(len(placements_xy)),
+               key=lambda i: (outside_band_m(placements_xy[i], band, margin_m), i))
 
 
 @dataclass(frozen=True)
