@@ -260,15 +260,21 @@ def test_memory_camera_info(memory, info):
 # ---------------------------------------------------------------- fovea_node
 @pytest.fixture(scope="module")
 def fovea(ctx):
-    node = _make(ctx, FoveaNode, mask_source="image")
+    node = _make(ctx, FoveaNode, mask_source="image", blocks_wait_s=0.0)
     node.on_camera_info(good_info())
     yield node
     node.destroy_node()
 
 
+#: the number the memory gave the arrays the fovea tests hold
+HELD_SEQUENCE = 5
+
+
 def _good_blocks() -> BlockArray:
-    return blocks_to_msg([MemBlock(b.name, b.name, b.x, b.y, b.yaw) for b in SCENE],
-                         Header(frame_id="world"))
+    msg = blocks_to_msg([MemBlock(b.name, b.name, b.x, b.y, b.yaw) for b in SCENE],
+                        Header(frame_id="world"))
+    msg.sequence = HELD_SEQUENCE
+    return msg
 
 
 def _ready(node) -> None:
@@ -278,22 +284,35 @@ def _ready(node) -> None:
                            ObserveSetting.Response()).success
 
 
+uint64 = st.one_of(st.integers(0, 2 * HELD_SEQUENCE), st.integers(0, 2**64 - 1))
+
+
 @SETTINGS
-@given(max_height=uint8)
-def test_fovea_observe(fovea, max_height):
+@given(max_height=uint8, blocks_sequence=uint64)
+def test_fovea_observe(fovea, max_height, blocks_sequence):
+    """Answered from the array held when the request names it or an earlier one; refused,
+    naming the array, when it names a later one (blocks_wait_s 0: at once)."""
     _ready(fovea)
-    res = fovea.on_observe(ObserveSetting.Request(max_height=max_height), ObserveSetting.Response())
+    res = fovea.on_observe(ObserveSetting.Request(max_height=max_height,
+                                                  blocks_sequence=blocks_sequence),
+                           ObserveSetting.Response())
     TALLY["fovea/observe tried"] += 1
+    if blocks_sequence > HELD_SEQUENCE:
+        assert not res.success and f"number {blocks_sequence} " in res.message
+        return
     assert res.success and all(i.state <= max_height for i in res.instances)
 
 
 @SETTINGS
-@given(state=uint8, action=uint8)
-def test_fovea_find_placement(fovea, state, action):
+@given(state=uint8, action=uint8, blocks_sequence=uint64)
+def test_fovea_find_placement(fovea, state, action, blocks_sequence):
     _ready(fovea)
-    res = fovea.on_find(FindPlacement.Request(state=state, action=action),
+    res = fovea.on_find(FindPlacement.Request(state=state, action=action,
+                                              blocks_sequence=blocks_sequence),
                         FindPlacement.Response())
     TALLY["fovea/find_placement tried"] += 1
+    if blocks_sequence > HELD_SEQUENCE and res.found:
+        pytest.fail(f"answered from array {HELD_SEQUENCE} for a request naming {blocks_sequence}")
     if not res.found:
         TALLY["fovea/find_placement refused"] += 1
         assert res.message
