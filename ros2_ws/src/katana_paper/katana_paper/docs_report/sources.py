@@ -56,8 +56,8 @@ SOURCES: dict[str, Source] = {
                "katana-robot claims runs/robot-study --truth docs/robot_truth.json"),
         Source("robot-after30", "docs/results/robot-after30/summary.json",
                "runs/robot-after30/summary.json",
-               "katana-robot paper --seeds 31 --experiments 30 --strategies q1,random "
-               "--jobs 2 --truth docs/robot_truth.json --out runs/robot-after30"),
+               "katana-robot paper --seeds 113 --experiments 30 --strategies q1,random "
+               "--jobs 2 --reuse --truth docs/robot_truth.json --out runs/robot-after30"),
         Source("robot-after30-claims", "docs/results/robot-after30/claims.json",
                "runs/robot-after30/claims.json",
                "katana-robot claims runs/robot-after30 --truth docs/robot_truth.json"),
