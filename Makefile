@@ -45,7 +45,7 @@ robot-paper: setup
 # The robot study at the scale the claims of section 3.3 need: every strategy, 20 seeds, 120
 # experiments each (katana-robot paper on Ray, --address for a cluster), then its claims. It
 # resumes: an interrupted study continues each run's log and keeps the complete ones, so it can
-# run in pieces (STUDY_SEEDS=12 STUDY_STRATEGIES=q1,random is the part the README reports).
+# run in pieces (STUDY_SEEDS=24 STUDY_STRATEGIES=q1,random is the part the README reports).
 STUDY_SEEDS ?= 20
 STUDY_EXPERIMENTS ?= 120
 STUDY_STRATEGIES ?= q1,q10,conf,random,lp,variance,rmax,egreedy

@@ -3,13 +3,13 @@
 Runs `katana-demo` in this process (every node in one process, headless, real_time_factor 0,
 seed 0) for EXPERIMENTS experiments. The stage times are what the curiosity node logs with
 each experiment. The floor is measured on the same experiments: the time spent inside the
-work the loop runs on - physics steps (`PhysicsSim.step`: the motions and the settling of
-the blocks), camera renders (`PhysicsSim.render`), segmentation (`Segmenter.segment`), the
-judge (`Judge.snapshot` / `Judge.judge`) and the fovea (`FoveaScene` construction, `observe`,
-`find`) - summed per experiment window (from one logged experiment to the next). The ratio
-s_per_experiment / experiment_floor_s is the loop's overhead: waits, polling, ROS transport.
-Renders beyond the two images an experiment needs are shown apart
-(experiment_floor_two_images_s): they are work, but work nobody uses.
+work the loop runs on - physics steps (`PhysicsSim.step` and its free-space check `free_run`:
+the motions and the settling of the blocks), camera renders (`PhysicsSim.render`),
+segmentation (`Segmenter.segment`), the judge (`Judge.snapshot` / `Judge.judge`) and the fovea
+(`FoveaScene` construction, `observe`, `find`) - summed per experiment window (from one
+logged experiment to the next). The ratio s_per_experiment / experiment_floor_s is the loop's
+overhead: waits, polling, ROS transport. Renders beyond the two images an experiment needs are
+shown apart (experiment_floor_two_images_s): they are work, but work nobody uses.
 """
 
 from __future__ import annotations
@@ -97,6 +97,7 @@ class Meter:
 def _instrument(meter: Meter) -> None:
     meter.track_worlds()
     meter.wrap(PhysicsSim, "step", "physics")
+    meter.wrap(PhysicsSim, "free_run", "physics")  # the free-space check ahead of a step
     meter.wrap(PhysicsSim, "_raw_render", "render")  # images drawn (a still scene's are not)
     meter.wrap(Segmenter, "segment", "segment")
     meter.wrap(Judge, "snapshot", "judge")

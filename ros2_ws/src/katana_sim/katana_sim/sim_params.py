@@ -28,7 +28,7 @@ PARAMS: tuple[Param, ...] = SCENE_PARAMS + (
     Param("seed", 0, "Seed of the first scatter and of the reset sequence.", 0, 2**31 - 1),
     Param("physics_rate", 240.0, "Physics steps per simulated second, Hz.", 60.0, 5000.0),
     Param("kinematic_free_space", SimConfig.kinematic_free_space, "Move the arm, and a block "
-          "held still in its grip, along the plan without physics steps while both are 3 cm "
+          "held still in its grip, along the plan without physics steps while both are 1 cm "
           "clear of every other block and of the table, the fingers still and every other block "
           "at rest; false: physics steps throughout."),
     Param("real_time_factor", 1.0, "Simulated seconds per wall second; 0: fast lock-step mode "

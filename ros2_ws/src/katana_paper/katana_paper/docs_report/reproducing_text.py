@@ -86,17 +86,16 @@ STUDY_ABOUT = """\
 runs them at the scale they need: every strategy, 20 seeds, 120 experiments, on Ray (each run a
 task in its own ROS domain; `STUDY_ADDRESS` for a cluster whose machines share the folder), then
 `katana-robot claims` on the result. It resumes and keeps complete runs, so it can run in
-pieces; the part below is q1 and random over 12 seeds. Its learning curves, the mean KL over
+pieces; the part below is q1 and random over 24 seeds. Its learning curves, the mean KL over
 the seeds with 95 % bootstrap bands per height and overall, are `kl.png` in the study's folder
 (docs/figures/robot_study_kl.png)."""
 STUDY_CLAIMS = "The paper's claims of section 3.3, against the study:"
 AFTER30_ABOUT = """\
 For each claim a run leaves INCONCLUSIVE, `katana-robot claims` says how many seeds would
-decide it, from the spread of its seeds. At `make robot-paper`'s budget every claim left open
-falls in the first 30 experiments, and runs of 30 experiments are cheap: the runs below are q1
-and random over 113 seeds of 30 experiments each (the claims of 60 and 120 experiments are not
-evaluated on them), the most that its 4 seeds said any of those claims needs (Q1 against Random
-after 15 experiments). Such a count comes from the effect a run saw; where that effect is noise
+decide it, from the spread of its seeds. The claims of the first 30 experiments need more seeds
+than `make robot-paper` has, and runs of 30 experiments are cheap: the runs below are q1 and
+random over 113 seeds of 30 experiments each (the claims of 60 and 120 experiments are not
+evaluated on them). A count of seeds comes from the effect a run saw; where that effect is noise
 around zero, it promises nothing, and the verdict below says so."""
 AFTER30_CLAIMS = "The paper's claims of section 3.3, against these runs:"
 

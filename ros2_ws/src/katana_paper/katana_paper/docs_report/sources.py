@@ -50,7 +50,7 @@ SOURCES: dict[str, Source] = {
                "katana-robot claims runs/robot-paper --truth docs/robot_truth.json"),
         Source("robot-study", "docs/results/robot-study/summary.json",
                "runs/robot-study/summary.json",
-               "make robot-study STUDY_SEEDS=12 STUDY_STRATEGIES=q1,random"),
+               "make robot-study STUDY_SEEDS=24 STUDY_STRATEGIES=q1,random"),
         Source("robot-study-claims", "docs/results/robot-study/claims.json",
                "runs/robot-study/claims.json",
                "katana-robot claims runs/robot-study --truth docs/robot_truth.json"),

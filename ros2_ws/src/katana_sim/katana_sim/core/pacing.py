@@ -115,7 +115,9 @@ def run_motion(
                 return DONE
             if sim.time >= end:
                 return TIMEOUT
-            sim.step(chunk)
+            # whole chunks the arm crosses without physics go in one call (PhysicsSim.free_run)
+            free = getattr(sim, "free_run", None)
+            sim.step(max(chunk, free(chunk) if free is not None else 0))
             after_chunk()
 
 

@@ -56,9 +56,12 @@ FIRST_REACHING_LINK = "katana_motor3_lift_link"
 #: a block slower than this, and turning slower than this, is at rest
 REST_SPEED_M_S = 2e-3
 REST_SPIN_RAD_S = 2e-2
-#: clearance (m) the arm keeps from every block and from the table top while it moves along its
-#: plan without physics steps (`PhysicsSim.step`)
-FREE_SPACE_MARGIN_M = 0.03
+#: clearance (m) the arm keeps, at the poses checked, from every block and from the table top
+#: while it moves along its plan without physics steps (`PhysicsSim.step`); between two poses
+#: checked it keeps at least half of it. Bullet's solver pushes two shapes apart only when
+#: they would touch within the step: 5 mm in a step is 1.2 m/s at 240 Hz, and no link of a
+#: pick-and-place moves faster than about 0.35 m/s (bench_arm's trials, stepped in physics).
+FREE_SPACE_MARGIN_M = 0.01
 #: a bound (m) on how far a point of the arm moves per radian of any joint: the Katana's
 #: longest lever, from the shoulder's axis to the fingertips, is about 0.6 m
 ARM_LEVER_M = 0.7
@@ -107,6 +110,7 @@ class PhysicsSim:
         # counts what can move the world but the arm's free moves: physics steps and teleports
         self._changes = 0
         self._horizon: tuple | None = None  # (trajectory, changes, last free step, held)
+        self._not_free: tuple | None = None  # (trajectory, changes, steps) found not free
         self._finger_horizon: tuple | None = None  # (gripper goal, free, changes if free)
         self._tmp = tempfile.TemporaryDirectory(prefix="katana_sim_")
         self._rng = np.random.default_rng(self.cfg.seed)
@@ -180,6 +184,11 @@ class PhysicsSim:
         self._probe_cid = p.connect(p.DIRECT)
         self._probe_arm = p.loadURDF(self._arm_file, (0, 0, 0), useFixedBase=True,
                                      physicsClientId=self._probe_cid)
+        # copies of the blocks, posed as the real ones (or in the grip) for exact distances
+        self._probe_blocks = {
+            body: p.loadURDF(str(Path(self._tmp.name) / f"block_{colour}.urdf"), (0, 0, -1),
+                             physicsClientId=self._probe_cid)
+            for colour, body in self.blocks.items()}
         self._gripper_link = self.link_index["katana_gripper_link"]
         self._pad_links = [self.link_index[name] for name in FINGER_PAD_LINKS]
         self._probe_links = [i for i in range(self._pb(p.getNumJoints, self.arm))
@@ -416,6 +425,27 @@ class PhysicsSim:
         )
 
     # ------------------------------------------------------------------ stepping
+    def free_run(self, chunk: int) -> int:
+        """Steps, in whole chunks of `chunk`, that the running trajectory will now make without
+        physics (`step`) with every chunk's end before the end of its plan: the fast sim's
+        lock-step takes them in one `step` call (`pacing.run_motion`). Judged chunk by chunk,
+        the arm would be on its plan at each of those ends, where only the path tolerances are
+        checked, so the outcome, the steps and the state after are the same; what is spared is
+        the per-chunk work in Python (sampling the plan, posing the arm, judging, publishing).
+        0 when the arm may not move without physics, or no whole chunk is left."""
+        traj = self._trajectory
+        if traj is None or traj.outcome.done or chunk <= 0:
+            return 0
+        free, _ = self._free_steps(traj, 1 << 62)
+        elapsed = self._steps - traj.start_step
+        duration = traj.judge.duration_s
+        chunks = min(free // chunk, max(0, math.ceil((duration / self.dt - elapsed) / chunk)))
+        # chunk ends strictly before the plan's end (judged against the goal from there on),
+        # compared as the judge compares them
+        while chunks > 0 and (elapsed + chunks * chunk) * self.dt >= duration:
+            chunks -= 1
+        return chunks * chunk
+
     def step(self, n: int = 1) -> None:
         """Advance n physics steps, driving the motors from the active controllers.
 
@@ -481,13 +511,14 @@ class PhysicsSim:
 
         It may when the fingers are still, every block is at rest but one held still between
         both finger pads, and the arm and the block it holds, where they are and posed at
-        samples of the plan close enough that no point of them moves more than
-        FREE_SPACE_MARGIN_M / 2 (plus one step's motion) between two, keep FREE_SPACE_MARGIN_M
-        from every other block and from the table top. Distances are those of axis-aligned
-        bounding boxes, which are never nearer than the shapes they hold: the check may miss a
-        free move, never admit one that comes near anything. What it admits holds up to the
-        horizon it found (nothing but the arm and its load moves meanwhile), unless something
-        is teleported or the fingers start."""
+        samples of the plan, keep FREE_SPACE_MARGIN_M from every other block and from the table
+        top (`_clearance`, a lower bound on the distance: the check may miss a free move, never
+        admit one that comes near anything). Samples advance by conservative advancement: no
+        point of the arm moves further than ARM_LEVER_M times the joints' summed travel, so
+        from a sample with `spare` metres beyond the margin the next may lie `spare` plus half
+        the margin on (plus one step's motion), and every pose between keeps half the margin.
+        What it admits holds up to the horizon it found (nothing but the arm and its load moves
+        meanwhile), unless something is teleported or the fingers start."""
         if not self.cfg.kinematic_free_space or self._gripper is not None:
             return 0, ()
         horizon = self._horizon
@@ -495,16 +526,19 @@ class PhysicsSim:
                 and self._steps < horizon[2]):
             return min(n, horizon[2] - self._steps), horizon[3]
         self._horizon = None
+        key = (traj, self._changes, self._steps)
+        refused = self._not_free
+        if refused is not None and refused[0] is traj and refused[1:] == key[1:]:
+            return 0, ()  # found not free in this state already (free_run, then step)
+        self._not_free = key  # until a horizon is found below
         held = self._held_block()
         if held is None:
             return 0, ()
         others = [body for body in self.blocks.values() if not held or body != held[0]]
         if not all(self._at_rest(body) for body in others):
             return 0, ()
-        margin = FREE_SPACE_MARGIN_M
-        boxes = np.array([self._pb(p.getAABB, body, -1) for body in others]).reshape(-1, 2, 3)
-        lo, hi = boxes[:, 0] - margin, boxes[:, 1] + margin
-        if not self._clear(self._cid, self.arm, held, lo, hi):  # where the arm is now
+        obstacles = self._obstacles(others)
+        if self._clearance(self._cid, self.arm, held, obstacles) < 0:  # where the arm is now
             return 0, ()
         # the rest of the plan, its end included (the arm holds there once it is done)
         start = self._steps - traj.start_step
@@ -512,23 +546,29 @@ class PhysicsSim:
         plan_q, _ = traj.sample_many((start + np.arange(rows_left + 1)) * self.dt)
         moved = np.abs(np.diff(plan_q, axis=0)).sum(axis=1) * ARM_LEVER_M
         travelled = np.concatenate(([0.0], np.cumsum(moved)))
-        rows = np.unique(np.concatenate((
-            np.searchsorted(travelled, np.arange(0.0, travelled[-1], margin / 2)),
-            [rows_left])))
         probe, arm = self._probe_cid, self._probe_arm
+        probe_obstacles = self._probe_obstacles(others, obstacles)
+        probe_held = (self._probe_blocks[held[0]], *held[1:]) if held else ()
         fingers = self.joint_state()[0][5:]  # still while the arm moves without physics
         p.resetJointStatesMultiDof(arm, self._finger_idx, [[v] for v in fingers],
                                    physicsClientId=probe)
-        last = 0  # every sample up to this row is clear
-        for row in rows:
+        last, row = 0, 0  # every sample up to row `last` is clear
+        while True:
             p.resetJointStatesMultiDof(arm, self._arm_idx, [[v] for v in plan_q[row]],
                                        physicsClientId=probe)
-            if not self._clear(probe, arm, held, lo, hi):
+            spare = self._clearance(probe, arm, probe_held, probe_obstacles)
+            if spare < 0:
                 break
-            last = int(row)
-        else:
-            last = 1 << 62  # the end is clear too: free until the goal is judged
+            last = row
+            if row >= rows_left:
+                last = 1 << 62  # the end is clear too: free until the goal is judged
+                break
+            # no point moves further than the travel bound: up to `spare` + margin / 2 on,
+            # every pose keeps half the margin
+            reach = travelled[row] + spare + FREE_SPACE_MARGIN_M / 2
+            row = min(rows_left, max(row + 1, int(np.searchsorted(travelled, reach, "right")) - 1))
         if last > 0:  # later calls find it without checking again while nothing else moves
+            self._not_free = None
             self._horizon = (traj, self._changes, self._steps + last, held)
         return min(n, last), held
 
@@ -555,20 +595,21 @@ class PhysicsSim:
         if not self.blocks_at_rest():
             return 0
         margin = FREE_SPACE_MARGIN_M
-        boxes = np.array([self._pb(p.getAABB, body, -1) for body in self.blocks.values()])
-        lo, hi = boxes[:, 0] - margin, boxes[:, 1] + margin
-        if not self._clear(self._cid, self.arm, (), lo, hi):
+        blocks = list(self.blocks.values())
+        obstacles = self._obstacles(blocks)
+        if self._clearance(self._cid, self.arm, (), obstacles) < 0:
             return 0
         pos = self.joint_state()[0]
         start, goal = float(pos[5:].mean()), grip.judge.goal
         samples = np.linspace(start, goal, 2 + int(abs(goal - start) / (margin / 2 / ARM_LEVER_M)))
         probe, arm = self._probe_cid, self._probe_arm
+        probe_obstacles = self._probe_obstacles(blocks, obstacles)
         p.resetJointStatesMultiDof(arm, self._arm_idx, [[v] for v in pos[:5]],
                                    physicsClientId=probe)
         for angle in samples:
             p.resetJointStatesMultiDof(arm, self._finger_idx, [[angle]] * len(self._finger_idx),
                                        physicsClientId=probe)
-            if not self._clear(probe, arm, (), lo, hi):
+            if self._clearance(probe, arm, (), probe_obstacles) < 0:
                 return 0
         self._finger_horizon = (grip, True, self._changes)
         return min(n, end_step - self._steps)
@@ -612,23 +653,56 @@ class PhysicsSim:
         rel_pos, rel_orn = p.multiplyTransforms(inv_pos, inv_orn, pos, orn)
         return body, rel_pos, rel_orn
 
-    def _clear(self, cid: int, arm: int, held, lo: np.ndarray, hi: np.ndarray) -> bool:
-        """The arm of client `cid` as posed, with the held block in its grip: every link's box
-        and the block's above the table top by the margin and outside every expanded block box
-        (lo, hi: (b, 3))."""
+    def _obstacles(self, bodies: list[int]) -> tuple[list[int], np.ndarray]:
+        """Blocks (at rest) the moving arm must keep FREE_SPACE_MARGIN_M from: their ids and
+        their bounding boxes ((b, 2, 3): lower and upper corners)."""
+        boxes = np.array([self._pb(p.getAABB, body, -1) for body in bodies]).reshape(-1, 2, 3)
+        return list(bodies), boxes
+
+    def _probe_obstacles(self, bodies: list[int], obstacles: tuple) -> tuple:
+        """`obstacles` in the probe world: the copies of `bodies` posed where they stand."""
+        copies = []
+        for body in bodies:
+            copy = self._probe_blocks[body]
+            p.resetBasePositionAndOrientation(
+                copy, *self._pb(p.getBasePositionAndOrientation, body),
+                physicsClientId=self._probe_cid)
+            copies.append(copy)
+        return copies, obstacles[1]
+
+    def _clearance(self, cid: int, arm: int, held, obstacles: tuple) -> float:
+        """How much nearer (m) the arm of client `cid` as posed, with the held block (body in
+        `cid`, pose in the grip) in its grip, may come to anything before some part of it is
+        within FREE_SPACE_MARGIN_M of the table top or of an obstacle block (`_obstacles`, ids
+        in `cid`): negative when one is. A lower bound: the table by the parts' bounding boxes;
+        a block by the gap between bounding boxes, and where that gap is under the margin by
+        PyBullet's exact distance between the shapes (then 0 once it is at least the margin).
+        In the main world the held block is where the grip holds it; in the probe world its
+        copy is posed there."""
+        bodies, boxes_b = obstacles
         boxes = [p.getAABB(arm, i, physicsClientId=cid) for i in self._probe_links]
         if held:
-            state = p.getLinkState(arm, self._gripper_link, physicsClientId=cid)
-            pos, orn = p.multiplyTransforms(state[4], state[5], held[1], held[2])
-            rot = np.abs(np.array(p.getMatrixFromQuaternion(orn)).reshape(3, 3))
-            half = rot @ (np.asarray(self.cfg.block_size) / 2)
-            boxes.append((np.asarray(pos) - half, np.asarray(pos) + half))
+            body = held[0]
+            if cid != self._cid:
+                state = p.getLinkState(arm, self._gripper_link, physicsClientId=cid)
+                pos, orn = p.multiplyTransforms(state[4], state[5], held[1], held[2])
+                p.resetBasePositionAndOrientation(body, pos, orn, physicsClientId=cid)
+            boxes.append(p.getAABB(body, -1, physicsClientId=cid))
         moving = np.array(boxes)
-        if moving[:, 0, 2].min() < self._table_top_z + FREE_SPACE_MARGIN_M:
-            return False
-        overlap = (np.all(moving[:, None, 0] < hi[None], axis=2)
-                   & np.all(moving[:, None, 1] > lo[None], axis=2))
-        return not overlap.any()
+        spare = float(moving[:, 0, 2].min()) - self._table_top_z - FREE_SPACE_MARGIN_M
+        if spare < 0 or not bodies:
+            return spare
+        apart = np.maximum(0.0, np.maximum(boxes_b[None, :, 0] - moving[:, None, 1],
+                                           moving[:, None, 0] - boxes_b[None, :, 1]))
+        gap = np.sqrt((apart * apart).sum(axis=2)) - FREE_SPACE_MARGIN_M  # (parts, blocks)
+        near = gap < 0
+        links = len(self._probe_links)
+        for part, k in zip(*np.nonzero(near), strict=True):
+            a, link = (arm, self._probe_links[part]) if part < links else (held[0], -1)
+            if p.getClosestPoints(a, bodies[k], FREE_SPACE_MARGIN_M, linkIndexA=link,
+                                  physicsClientId=cid):
+                return -1.0
+        return min(spare, float(np.where(near, 0.0, gap).min()))
 
     def _move_kinematic(self, n: int, q: np.ndarray, v: np.ndarray, held) -> None:
         """n steps without physics: the arm takes its planned state (q, v) and the block it
