@@ -60,7 +60,7 @@ REST_SPIN_RAD_S = 2e-2
 #: while it moves along its plan without physics steps (`PhysicsSim.step`); between two poses
 #: checked it keeps at least half of it. Bullet's solver pushes two shapes apart only when
 #: they would touch within the step: 5 mm in a step is 1.2 m/s at 240 Hz, and no link of a
-#: pick-and-place moves faster than about 0.35 m/s (bench_arm's trials, stepped in physics).
+#: pick-and-place moves faster than 0.40 m/s (bench_arm's 64 trials, stepped in physics).
 FREE_SPACE_MARGIN_M = 0.01
 #: a bound (m) on how far a point of the arm moves per radian of any joint: the Katana's
 #: longest lever, from the shoulder's axis to the fingertips, is about 0.6 m
