@@ -116,8 +116,7 @@ def run_motion(
             if sim.time >= end:
                 return TIMEOUT
             # whole chunks the arm crosses without physics go in one call (PhysicsSim.free_run)
-            free = getattr(sim, "free_run", None)
-            sim.step(max(chunk, free(chunk) if free is not None else 0))
+            sim.step(max(chunk, sim.free_run(chunk)))
             after_chunk()
 
 
