@@ -16,6 +16,12 @@ goal ended in about one goal of three, and a pick-and-place took 0.6-0.9 s where
    the Jazzy wheels on PyPI. Here a task counts as executing from the moment it is queued; the
    worker clears the mark just before it runs the task.
 
+A future's done-callbacks are executor tasks in rclpy (the executor that completed the future
+queues them): a thread waiting for an answer is woken only after one more round of the wait
+loop and a worker. `runs_inline(callback)` marks a callback that only wakes a waiting thread
+(sets an Event); this executor runs such a callback at once, in the thread that completed the
+future. Every other callback, and every callback on another executor, runs as before.
+
 Use it wherever a multi-threaded executor is made. `BackgroundSpin` spins an executor in a
 thread of its own, for a graph that the calling thread only waits on (in-process graphs, tests).
 """
@@ -24,13 +30,23 @@ from __future__ import annotations
 
 import threading
 import weakref
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 from rclpy.event_handler import EventHandler
 from rclpy.executors import Executor
 from rclpy.executors import MultiThreadedExecutor as _RclpyMultiThreadedExecutor
-from rclpy.task import Task
+from rclpy.task import Future, Task
+
+_INLINE = "_katana_runs_inline"
+
+
+def runs_inline(callback: Callable) -> Callable:
+    """Mark `callback` (quick, thread-safe, never raising: it sets an Event) to be run at once
+    by this module's executor when a future completes, instead of as a task."""
+    setattr(callback, _INLINE, True)
+    return callback
 
 
 def _start(task: Task) -> None:
@@ -58,6 +74,16 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
         self._executor = _QueuedCountsAsExecuting(self._executor)
         # event handler -> its subscription (None: a publisher's); only the spinning thread uses it
         self._subscription_of: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+    def create_task(self, callback: Callable, *args: Any, **kwargs: Any) -> Task | Future:
+        """A callback marked `runs_inline` runs now (the returned future is done); any other
+        becomes a task, as in rclpy."""
+        if getattr(callback, _INLINE, False):
+            callback(*args, **kwargs)
+            done: Future = Future()
+            done.set_result(None)
+            return done
+        return super().create_task(callback, *args, **kwargs)
 
     def can_execute(self, entity: Any) -> bool:
         if not super().can_execute(entity):

@@ -1,7 +1,8 @@
 """The bounded wait on an rclpy future, from a callback thread of a multi-threaded executor.
 
 rclpy's `spin_until_future_complete` must not be called from inside a callback of an executor
-that is already spinning; there the done-callback and an Event are the way to wait. The wait
+that is already spinning; there the done-callback and an Event are the way to wait (the
+project's executor runs that callback at once: katana_common.executor.runs_inline). The wait
 also ends early when the node is stopping, so shutdown never hangs on a reply that will not
 come.
 """
@@ -10,6 +11,8 @@ from __future__ import annotations
 
 import threading
 from typing import Any
+
+from .executor import runs_inline
 
 
 class Stopped(RuntimeError):
@@ -28,7 +31,7 @@ def wait_for_future(
     On a time-out or stop the future is cancelled, so a late answer is dropped.
     """
     done = threading.Event()
-    future.add_done_callback(lambda _f: done.set())
+    future.add_done_callback(runs_inline(lambda _f: done.set()))
     remaining = float(timeout_s)
     while not done.is_set():
         if stop is not None and stop.is_set():

@@ -1,4 +1,5 @@
-"""katana_common.executor: rclpy's MultiThreadedExecutor without its two busy loops.
+"""katana_common.executor: rclpy's MultiThreadedExecutor without its two busy loops, and with
+done-callbacks that only wake a waiting thread run at once.
 
 Each test fills the thread pool with tasks that wait for a release, so that what comes next
 stays queued, then counts how often the spinning thread goes round its wait loop meanwhile
@@ -13,10 +14,12 @@ import time
 
 import pytest
 import rclpy
-from katana_common.executor import MultiThreadedExecutor
+from katana_common.executor import MultiThreadedExecutor, runs_inline
+from katana_common.futures import wait_for_future
 from rclpy.context import Context
 from rclpy.event_handler import EventHandler
 from rclpy.executors import MultiThreadedExecutor as RclpyMultiThreadedExecutor
+from rclpy.task import Future
 from std_msgs.msg import Int32
 
 WORKERS = 2
@@ -136,3 +139,25 @@ def test_a_queued_task_is_handed_out_once(graph):
     graph.release.set()
     assert ran.wait(5.0)
     assert task.done()
+
+
+def test_a_thread_waiting_for_an_answer_is_woken_by_the_thread_that_answers(graph):
+    """A future's done-callbacks are tasks of its executor in rclpy: with every worker busy, a
+    thread waiting for the answer (wait_for_future) is not woken until a worker is free. Ours
+    runs a callback marked runs_inline in the thread that completes the future; an unmarked
+    one is still a task."""
+    graph.occupy_every_worker()
+    answer, other = Future(executor=graph.executor), Future(executor=graph.executor)
+    woke, other_ran = threading.Event(), threading.Event()
+    answer.add_done_callback(runs_inline(lambda _f: woke.set()))
+    other.add_done_callback(lambda _f: other_ran.set())
+    answer.set_result(42)
+    other.set_result(7)
+    if graph.ours:
+        assert woke.is_set()  # before set_result returned
+        assert wait_for_future(answer, 1.0, "answer") == 42
+    else:
+        assert not woke.wait(WINDOW_S)  # queued behind the busy workers
+    assert not other_ran.wait(WINDOW_S)  # unmarked: a task, on either executor
+    graph.release.set()
+    assert woke.wait(5.0) and other_ran.wait(5.0)

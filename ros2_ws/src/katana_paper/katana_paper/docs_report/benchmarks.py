@@ -224,16 +224,16 @@ def bench_loop_hardware(data: Json) -> str:
                 table(("stage", "median s"), [(f"`{k}`", num(v)) for k, v in stages.items()]),
                 ""]
     out.append(f"{num(get(data, 'experiments'))} gaps between logged experiments; "
-               f"{num(get(data, 'moves_per_experiment'), 1)} arm moves per experiment, "
-               f"{num(get(data, 'between_moves_s'), 2)} s (median) from the end of one to the "
-               "sending of the next within an experiment.")
-    fingers, beyond = get(data, "finger_motion_s"), get(data, "beyond_motion_s")
-    if finite(fingers) and finite(beyond):
+               f"{num(get(data, 'moves_per_experiment'), 1)} arm moves per experiment.")
+    fingers, still = get(data, "finger_motion_s"), get(data, "still_s")
+    if finite(fingers) and finite(still):
         out[-1] += (f" The fingers moved {num(fingers, 2)} s per experiment (median; the arm "
-                    "stands meanwhile: motor 6 holds in every spline row), and an experiment "
-                    f"took {num(beyond, 2)} s (median) beyond the arm's and the fingers' motion "
-                    "(planning, goal round trips, the driver's end-of-move detection, "
-                    "perception and learning).")
+                    "stands meanwhile: motor 6 holds in every spline row), and no motor moved "
+                    f"for {num(still, 2)} s (median).")
+    steps = get(data, "still_by_step_s", default={}) or {}
+    if steps:
+        out += ["", "Where the still time falls, seconds per experiment (medians):", "",
+                table(("between", "median s"), [(k, num(v, 2)) for k, v in steps.items()])]
     return "\n".join(out)
 
 
@@ -451,11 +451,15 @@ processes; and one trajectory goal under each fault of the emulator (lost, corru
 late replies, a silent or frozen controller, a dropped TCP link, a restarted emulator)."""),
     "loop_hardware": ("the whole loop against the emulator in real time", """\
 `bench/bench_loop_hardware.py`. `katana-run --backend hardware` as a user runs it, against
-the Katana emulator in real time (time scale 1; its gripper stalls where a 4 cm block would
-hold the fingers) and the substitute camera, for at least 10 experiments. Seconds per
-experiment is the median wall time between consecutive logged experiments; its floor is the
-arm's motion in them (the durations of the spline segments the emulator accepted). That motion
-stands beside the least time the arm's speed and acceleration limits allow on the same paths
+the Katana emulator in real time (time scale 1; every request answered 40 ms late, as the
+real arm answers; its gripper stalls where a 4 cm block would hold the fingers) and the
+substitute camera, for at least 10 experiments. Seconds per experiment is the median wall time
+between consecutive logged experiments; its floor is the arm's motion in them (the durations
+of the spline segments the emulator accepted). That motion stands beside the least time the
+arm's speed and acceleration limits allow on the same paths
 (`katana_manipulation.core.time_optimal` through the knots the driver sent, each rest-to-rest
-move on its own)."""),
+move on its own). From the emulator's 10 ms ticks: the time the fingers moved, the time no
+motor moved, and where that still time falls: between two arm goals, between an arm goal and
+a finger move, and around the logging of an experiment (from the park's end to the next
+experiment's first motion)."""),
 }
