@@ -9,7 +9,8 @@ or plan, height, label, experiments per minute). At the end the folder holds the
 log, the learner checkpoint, summary.json, model.png (learned stability model per height and
 action with its confidence band, cf. the paper's Figure 13), experience.png (direct and
 planned experience per height, cf. Figure 4) and frames/ (camera images before and after a
-few placements, with the fovea and the chosen placement drawn).
+few placements, with the fovea and the chosen placement drawn); with --contact-sheet FILE.png,
+the contact sheet of twelve experiments from --contact-first (katana_bringup.contact_sheet).
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ import rclpy
 from katana_common.cli_args import (
     CommandLineError,
     from_spec,
+    new_file,
+    non_negative_int,
     parse_command_line,
     positive_seconds,
     writable_folder,
@@ -41,6 +44,7 @@ from katana_sim.sim_params import PARAMS as SIM_PARAMS
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from .contact_sheet import CONTACT_ROWS, ContactSheetRecorder
 from .frames import ExperienceFrames, Frames, draw_placement
 from .graph_params import LAYERS
 from .live_view import foxglove_address
@@ -141,6 +145,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "on the terminal)")
     parser.add_argument("--timeout", type=positive_seconds, default=None, metavar="S",
                         help="give up after S wall seconds (default: 30 s per experiment)")
+    parser.add_argument("--contact-sheet", type=new_file(".png"), default=None,
+                        metavar="FILE.png",
+                        help=f"draw {CONTACT_ROWS} consecutive experiments into FILE.png in the "
+                        "paper's four columns (cf. its Figures 10-12)")
+    parser.add_argument("--contact-first", type=non_negative_int, default=0, metavar="N",
+                        help="the contact sheet's first experiment (default 0)")
     return parser
 
 
@@ -246,6 +256,8 @@ def _run(args, ros_args: list[str], params: dict, out: Path, new_folder: bool,
               f"kept in {out / 'sessions.jsonl'}", flush=True)
     recorder_node = Node("demo_frame_recorder")
     recorder = FrameRecorder(recorder_node, out / "frames", ground_truth=args.backend == "sim")
+    contact = (ContactSheetRecorder(recorder_node, args.contact_first)
+               if args.contact_sheet is not None else None)
     learner = next(n for n in nodes if n.get_name() == "curiosity_node")
     clock = SessionClock(out, learner.experiments)
     recorder_node.create_timer(1.0, lambda: clock.beat(learner.experiments))
@@ -273,6 +285,9 @@ def _run(args, ros_args: list[str], params: dict, out: Path, new_folder: bool,
                until=learner.finished, limit_s=KATANA_RUN_SHUTDOWN_LIMIT_S)
     show_new()  # the last ones, whose messages the spin may have ended before
     terminal.close()
+    if contact is not None and not contact.write(args.contact_sheet):
+        print(f"katana-demo: no experiment from {args.contact_first} on for the contact sheet",
+              file=sys.stderr)
     finished = learner.finished.is_set()
     if not finished:
         print("katana-demo: stopped before the last experiment; what was recorded is kept",

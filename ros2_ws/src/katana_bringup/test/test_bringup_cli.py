@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 from katana_bringup import demo, graph_params, run
 from katana_common.cli_args import parse_command_line
 from katana_common.cli_testing import (
+    BAD_WORKING_TREE,
     bad_working_folder,
     cli_settings,
     floats_outside,
@@ -31,6 +32,7 @@ from katana_common.cli_testing import (
     refused,
     tree,
     unknown_flags,
+    unwritable_files,
     words,
 )
 from katana_common.param_files import TOLERATED_UNDECLARED
@@ -51,6 +53,8 @@ DEMO_OPTIONS = {
     "--out": folders,
     "--record": mcaps,
     "--params": missing_files,
+    "--contact-sheet": unwritable_files(".png"),
+    "--contact-first": ints_outside(0),
 }
 RUN_OPTIONS = {
     "--backend": not_one_of(graph_params.BACKENDS),
@@ -238,7 +242,7 @@ def test_katana_demo_refuses_a_bad_params_file_before_its_run_folder(workdir, ca
 def test_katana_demo_refuses_at_parse_time_what_it_refused_late(workdir, capsys, argv, named):
     line = refused(demo.main, ["--out", "run", *argv], capsys)
     assert named in line, line
-    assert tree(workdir) == ["file.txt", "folder.mcap"]
+    assert tree(workdir) == BAD_WORKING_TREE
 
 
 @CHECKS

@@ -81,18 +81,31 @@ def not_one_of(choices) -> st.SearchStrategy[str]:
 #: folders no one can write in, relative to a working folder holding a file `file.txt`
 folders = st.one_of(st.just(""), names.map(lambda n: f"file.txt/{n}"),
                     names.map(lambda n: f"/proc/{n}/x"), st.just("x" * 300))
-#: MCAP files that cannot be written (with a folder `folder.mcap` in the working folder)
-mcaps = st.one_of(names.map(lambda n: f"{n}.bag"), names.map(lambda n: f"missing/{n}.mcap"),
-                  names.map(lambda n: f"/proc/{n}.mcap"), st.just("file.txt/run.mcap"),
-                  st.just("folder.mcap"), st.just(""))
+
+
+def unwritable_files(suffix: str) -> st.SearchStrategy[str]:
+    """Files ending in `suffix` that cannot be written (with a folder `folder<suffix>` in the
+    working folder), and names with another suffix."""
+    return st.one_of(names.map(lambda n: f"{n}.bag"), names.map(lambda n: f"missing/{n}{suffix}"),
+                     names.map(lambda n: f"/proc/{n}{suffix}"), st.just(f"file.txt/run{suffix}"),
+                     st.just(f"folder{suffix}"), st.just(""))
+
+
+#: MCAP files that cannot be written
+mcaps = unwritable_files(".mcap")
 #: files to read that are not there
 missing_files = names.map(lambda n: f"missing-{n}.yaml") | st.sampled_from([".", ""])
 
 
+#: what bad_working_folder makes: a refused command line leaves the folder so
+BAD_WORKING_TREE = ["file.txt", "folder.mcap", "folder.png"]
+
+
 def bad_working_folder(folder) -> None:
-    """The file and the folder the strategies above point at."""
+    """The file and the folders the strategies above point at (BAD_WORKING_TREE)."""
     (folder / "file.txt").write_text("x")
     (folder / "folder.mcap").mkdir()
+    (folder / "folder.png").mkdir()
 
 
 def unknown_flags(parser: argparse.ArgumentParser) -> st.SearchStrategy[str]:

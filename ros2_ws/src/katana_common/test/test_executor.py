@@ -14,13 +14,25 @@ import time
 
 import pytest
 import rclpy
-from katana_common.executor import MultiThreadedExecutor, runs_inline
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from katana_common.executor import (
+    INCOMPATIBILITY_POLL_S,
+    BackgroundSpin,
+    MultiThreadedExecutor,
+    reports_incompatibility,
+    runs_inline,
+)
 from katana_common.futures import wait_for_future
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.context import Context
-from rclpy.event_handler import EventHandler
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.executors import Executor, TimeoutException
 from rclpy.executors import MultiThreadedExecutor as RclpyMultiThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from std_msgs.msg import Int32
+from std_srvs.srv import Trigger
 
 WORKERS = 2
 WINDOW_S = 0.4  # how long the counted work stays queued
@@ -31,15 +43,12 @@ def counting(base: type) -> type:
     class Counting(base):
         def __init__(self, *args, **kwargs) -> None:
             super().__init__(*args, **kwargs)
-            self.rounds = 0  # rounds of the wait loop (one can_execute of a QoS event handler)
+            self.rounds = 0  # rounds of the wait loop (each asks for the executor's nodes once)
             self.handed_out: collections.Counter = collections.Counter()
-            self._first_handler: EventHandler | None = None
 
-        def can_execute(self, entity) -> bool:
-            if isinstance(entity, EventHandler):
-                self._first_handler = self._first_handler or entity
-                self.rounds += entity is self._first_handler
-            return super().can_execute(entity)
+        def get_nodes(self):
+            self.rounds += 1
+            return super().get_nodes()
 
         def wait_for_ready_callbacks(self, *args, **kwargs):
             handler, entity, node = super().wait_for_ready_callbacks(*args, **kwargs)
@@ -161,3 +170,114 @@ def test_a_thread_waiting_for_an_answer_is_woken_by_the_thread_that_answers(grap
     assert not other_ran.wait(WINDOW_S)  # unmarked: a task, on either executor
     graph.release.set()
     assert woke.wait(5.0) and other_ran.wait(5.0)
+
+
+class Twin:
+    """A node with every kind of entity an executor waits on: subscriptions (two in one
+    mutually exclusive group), timers (one always due, one never), a guard condition, a
+    service and a client of it, and the QoS event handlers rclpy gives every publisher and
+    subscription. Nothing is spun: work is made ready and left pending."""
+
+    def __init__(self) -> None:
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.executor = MultiThreadedExecutor(num_threads=WORKERS, context=self.context)
+        self.node = rclpy.create_node("executor_twin", context=self.context)
+        group = MutuallyExclusiveCallbackGroup()
+        self.topics = ("a", "b", "c")
+        for i, topic in enumerate(self.topics):
+            self.node.create_subscription(Int32, topic, lambda _m: None, 10,
+                                          callback_group=group if i < 2 else None)
+        self.publishers = {t: self.node.create_publisher(Int32, t, 10) for t in self.topics}
+        self.node.create_timer(0.001, lambda: None)
+        self.node.create_timer(3600.0, lambda: None)
+        self.guard = self.node.create_guard_condition(lambda: None)
+        self.node.create_service(Trigger, "twin_trigger", lambda _r, a: a)
+        self.client = self.node.create_client(Trigger, "twin_trigger")
+        self.executor.add_node(self.node)
+        self.peer = None
+
+    def handed_out(self, wait_loop) -> list:
+        """Every entity `wait_loop` hands out without waiting, then the executor as before."""
+        self.executor._next_incompatibility_poll_ns = 0  # a round that polls them all
+        entities = []
+        try:
+            for _handler, entity, _node in wait_loop(self.executor, timeout_sec=0):
+                entities.append(entity)
+        except TimeoutException:
+            pass
+        for entity in entities:  # handed out, never run: as if not yet seen
+            entity._executor_event = False
+        self.executor._tasks.clear()
+        return entities
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=2.0)
+        self.node.destroy_node()
+        if self.peer is not None:
+            self.peer.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+@pytest.fixture(scope="module")
+def twin():
+    t = Twin()
+    yield t
+    t.close()
+
+
+@pytest.mark.filterwarnings("ignore:coroutine .* was never awaited")  # handed out, never run
+@settings(max_examples=8, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(published=st.sets(st.sampled_from(("a", "b", "c"))), request=st.booleans(),
+       guard=st.booleans(), incompatible_peer=st.booleans(), ours_first=st.booleans())
+def test_the_wait_loop_hands_out_what_rclpys_does(twin, published, request, guard,
+                                                  incompatible_peer, ours_first):
+    """The fast loop against its reference twin, rclpy's own, on the same pending work."""
+    for topic in sorted(published):
+        twin.publishers[topic].publish(Int32(data=1))
+    if request:
+        twin.client.call_async(Trigger.Request())
+    if guard:
+        twin.guard.trigger()
+    if incompatible_peer and twin.peer is None:  # a best-effort publisher to a reliable topic
+        twin.peer = rclpy.create_node("executor_twin_peer", context=twin.context)
+        twin.peer.create_publisher(
+            Int32, "c", QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+    time.sleep(0.3)  # delivered: pending in the node's readers from here on
+    loops = [MultiThreadedExecutor._wait_for_ready_callbacks, Executor._wait_for_ready_callbacks]
+    if not ours_first:
+        loops.reverse()
+    first, second = (twin.handed_out(loop) for loop in loops)
+    assert first == second
+    assert first, "the timer that is always due is handed out"
+    if twin.peer is not None:
+        assert any(reports_incompatibility(e) for e in first)
+
+
+def test_an_incompatible_peer_is_still_reported():
+    """QoS events that report an incompatible peer join the wait set every
+    INCOMPATIBILITY_POLL_S, not every round: the report comes, a poll later at most."""
+    context = Context()
+    rclpy.init(context=context)
+    executor = MultiThreadedExecutor(num_threads=WORKERS, context=context)
+    node = rclpy.create_node("executor_listener", context=context)
+    reported = threading.Event()
+    node.create_subscription(
+        Int32, "numbers", lambda _m: None, 10,
+        event_callbacks=SubscriptionEventCallbacks(incompatible_qos=lambda _e: reported.set()))
+    handlers = [h for h in node.waitables if reports_incompatibility(h)]
+    assert handlers  # the subscription's handler is one of the polled kind
+    executor.add_node(node)
+    spin = BackgroundSpin(executor, slice_s=SPIN_SLICE_S)
+    talker = rclpy.create_node("executor_talker", context=context)
+    try:
+        talker.create_publisher(
+            Int32, "numbers", QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+        assert reported.wait(2.0 + INCOMPATIBILITY_POLL_S)
+    finally:
+        spin.stop()
+        executor.shutdown(timeout_sec=2.0)
+        talker.destroy_node()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)

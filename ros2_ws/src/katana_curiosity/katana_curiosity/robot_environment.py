@@ -93,8 +93,10 @@ class RobotEnvironment:
         self._joint_states = 0
         self._arm_ready: bool | None = None  # the driver's arm_ready; None: none heard yet
         node.create_subscription(BlockArray, BLOCKS_TOPIC, self.on_blocks, STATE_QOS, **kw)
-        node.create_subscription(JointState, "joint_states", self._on_joint_state,
-                                 JOINT_STATE_QOS, **kw)
+        # only to see the arm publish (readiness): dropped once the graph is ready, so the
+        # node does not take every joint state of the run for nothing
+        self._joint_state_sub = node.create_subscription(
+            JointState, "joint_states", self._on_joint_state, JOINT_STATE_QOS, **kw)
         node.create_subscription(Bool, ARM_READY_TOPIC, self._on_arm_ready, STATE_QOS, **kw)
         self.instances: list[FoveaInstance] = []
         self.offered_instances: list[FoveaInstance] = []
@@ -173,6 +175,9 @@ class RobotEnvironment:
         while True:
             missing = self._missing()
             if not missing:
+                if self._joint_state_sub is not None:
+                    self.node.destroy_subscription(self._joint_state_sub)
+                    self._joint_state_sub = None
                 return
             left = deadline - time.monotonic()
             if left <= 0:

@@ -6,7 +6,7 @@ direct and planned experience per height, and which experiments were wasted, as 
 summary counts them (katana_curiosity.core.progress: known beforehand, came out as predicted,
 and no experiment that taught the learner followed before a reset). `summarise` folds the runs
 of each strategy into summary.json; the figure functions draw the paper's Figures 4/5 and 13
-for the robot (katana_paper.contact_sheet draws Figures 10-12).
+for the robot (katana_bringup.contact_sheet draws Figures 10-12).
 """
 
 from __future__ import annotations

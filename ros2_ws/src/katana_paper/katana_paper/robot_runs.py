@@ -32,7 +32,6 @@ from katana_curiosity.core.predictors import ALPHA, THETA_ROBOT
 from katana_curiosity.core.run_record import LOG_NAME, ExperienceLog
 
 from . import robot_paper as rp
-from .contact_sheet import ContactSheetRecorder, contact_sheet
 from .ray_session import ray_session
 from .robot_truth import TruthTable
 
@@ -127,10 +126,11 @@ def run_task(task: RunTask) -> tuple[str, int, float]:
     exit code, seconds). Cancelling the task (KeyboardInterrupt) ends the run as Ctrl-C does."""
     name = run_name(task.strategy, task.seed)
     start = time.monotonic()
+    contact = ([] if task.contact_first is None else
+               ["--contact-sheet", task.contact_sheet, "--contact-first", str(task.contact_first)])
     with leased_domain(task.domains) as domain:
-        recorder = (ContactSheetRecorder(domain, task.contact_first)
-                    if task.contact_first is not None else None)
-        proc = _launch(task.strategy, task.seed, task.experiments, Path(task.run_dir), domain, [])
+        proc = _launch(task.strategy, task.seed, task.experiments, Path(task.run_dir), domain,
+                       contact)
         try:
             while (code := proc.poll()) is None:
                 if time.monotonic() - start > task.timeout_s:
@@ -142,10 +142,6 @@ def run_task(task: RunTask) -> tuple[str, int, float]:
                 code = _end(proc)
             if not proc.log.closed:
                 proc.log.close()
-            if recorder is not None:
-                recorder.close()
-                if recorder.rows:
-                    contact_sheet(recorder.rows, Path(task.contact_sheet))
     return name, int(code), time.monotonic() - start
 
 
@@ -154,8 +150,9 @@ def run_all(jobs: Sequence[Job], experiments: int, out: Path, parallel: int,
             reuse: bool = False, address: str | None = None) -> dict[str, int]:
     """Each (strategy, seed) a Ray task running katana-demo in its own ROS domain (`parallel`
     domains from `domain_base` per machine, and as many CPUs on a local Ray); the first run
-    launched also records the contact sheet. Returns exit codes by run. On a cluster
-    (`address`), `out` must be a folder every machine sees at the same path."""
+    launched also draws the contact sheet (katana-demo --contact-sheet). Returns exit codes by
+    run. On a cluster (`address`), `out` must be a folder every machine sees at the same
+    path."""
     codes: dict[str, int] = {}
     todo = []
     for strategy, seed in jobs:

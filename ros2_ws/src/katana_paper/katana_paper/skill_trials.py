@@ -9,12 +9,16 @@ from pathlib import Path
 from katana_bringup.in_process import InProcessGraph
 from katana_bringup.run import build_nodes, overrides_for
 from katana_common.action_client import ActionClient
+from katana_common.testing import wait_until
 from katana_curiosity.skill_node import PARAMS as SKILL_NODE_PARAMS
 from katana_curiosity.skill_node import SkillNode
 from katana_interfaces.action import BuildStack
 from rclpy.parameter import Parameter
 
 from .graph_client import GraphClient, graph_params
+
+#: how long a trial waits, after its result, for feedback still on its way (seconds)
+FEEDBACK_WAIT_S = 5.0
 
 #: what skill_node takes of the parameters the graph's YAML sets for it: the ones it declares
 #: (its own and node_params.ROBOT_PARAMS: the scene, and the reach geometry under `/**` that
@@ -33,6 +37,8 @@ def _trial(g: InProcessGraph, client: GraphClient, action: ActionClient, seed: i
         BuildStack.Goal(target_height=goal_height, max_placements=max_placements),
         feedback_callback=lambda f, fb=feedback: fb.append(f.feedback)), 30.0)
     result = g.result(handle.get_result_async(), 60.0 * max_placements + 60.0).result
+    # one feedback per placement, on a channel of its own: the last may come after the result
+    wait_until(lambda: len(feedback) >= result.placements, FEEDBACK_WAIT_S)
     truth_height = max((b.level for b in client.settled(0.3)), default=0)
     return {
         "seed": seed, "success": bool(result.success), "reason": result.reason,

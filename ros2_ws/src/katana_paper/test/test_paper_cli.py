@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from katana_common.cli_testing import (
+    BAD_WORKING_TREE,
     bad_working_folder,
     cli_settings,
     floats_outside,
@@ -122,7 +123,7 @@ def test_an_unknown_option_or_subcommand_is_refused(workdir, capsys, data, tool)
     assert "unrecognized arguments" in line and flag in line
     other = data.draw(names.filter(lambda n: n not in table))
     assert "invalid choice" in refused(tool.main, [other], capsys)
-    assert tree(workdir) == ["file.txt", "folder.mcap"]
+    assert tree(workdir) == BAD_WORKING_TREE
 
 
 @pytest.mark.parametrize("argv, named", [
@@ -136,7 +137,7 @@ def test_an_unknown_option_or_subcommand_is_refused(workdir, capsys, data, tool)
 def test_katana_robot_leaves_no_output_folder_behind(workdir, capsys, argv, named):
     """Before, the default --out (runs/robot-skill, runs/robot-paper) was made while parsing."""
     assert named in refused(robot_cli.main, argv, capsys)
-    assert tree(workdir) == ["file.txt", "folder.mcap"]
+    assert tree(workdir) == BAD_WORKING_TREE
 
 
 @pytest.mark.parametrize("argv, named", [
@@ -147,4 +148,4 @@ def test_katana_robot_leaves_no_output_folder_behind(workdir, capsys, argv, name
 ])
 def test_katana_curiosity_checks_what_its_runs_would_refuse(workdir, capsys, argv, named):
     assert named in refused(curiosity_cli.main, argv, capsys)
-    assert tree(workdir) == ["file.txt", "folder.mcap"]
+    assert tree(workdir) == BAD_WORKING_TREE

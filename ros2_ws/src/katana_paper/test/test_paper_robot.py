@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 from katana_bringup.in_process import InProcessGraph
 from katana_bringup.run import build_nodes
 from katana_common.action_client import ActionClient
-from katana_common.testing import private_domain_id
+from katana_common.testing import private_domain_id, wait_until
 from katana_curiosity.core.predictors import ALPHA, THETA_ROBOT
 from katana_curiosity.core.robot_loop import robot_bank
 from katana_curiosity.core.run_record import CHECKPOINT_NAME, save_checkpoint
@@ -118,6 +119,8 @@ def test_skill_node_chooses_what_the_plan_says_in_a_two_stack_setting(tmp_path):
                 BuildStack.Goal(target_height=3, max_placements=1),
                 feedback_callback=lambda f, fb=feedback: fb.append(f.feedback)))
             result = g.result(handle.get_result_async(), 300.0).result
+            # the feedback travels apart from the result, and may come after it
+            wait_until(lambda fb=feedback: len(fb) == 1, 5.0)
             assert result.placements == 1 and len(feedback) == 1, result.reason
             choices[good] = (feedback[0].state, feedback[0].action)
             assert feedback[0].predicted_success == pytest.approx(best.predicted_success)
@@ -168,6 +171,7 @@ def test_the_tricky_situation_on_the_sim_starts_again_from_height_one(tmp_path):
             BuildStack.Goal(target_height=3, max_placements=3),
             feedback_callback=lambda f: feedback.append(f.feedback)))
         result = g.result(handle.get_result_async(), 300.0).result
+        wait_until(lambda: len(feedback) >= result.placements, 5.0)  # may come after it
         truth_height = max(b.level for b in true_blocks(client.truth))
     finally:
         g.close()
@@ -205,6 +209,11 @@ def test_paper_with_two_seeds_writes_every_file(tmp_path):
         assert (out / name).stat().st_size > 0, name
     rows = (out / "q1-s0.csv").read_text().splitlines()
     assert len(rows) == 4
+    # every experiment of the first run is on the contact sheet (recorded in the run's own
+    # process, none missed while a recorder elsewhere discovered the run): a 28-pixel header
+    # and a row of 180 (640x480 images at 240 pixels wide) each
+    sheet = cv2.imread(str(out / "contact_sheet.png"))
+    assert sheet.shape[0] == 28 + 3 * 180
     assert np.isfinite(q1["final_kl_overall"])
     assert 0.0 <= q1["wasted_share"] <= 1.0
 

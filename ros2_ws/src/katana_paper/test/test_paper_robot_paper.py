@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from katana_bringup.contact_sheet import contact_sheet
 from katana_curiosity.core.predictors import ALPHA, THETA_ROBOT
 from katana_paper import robot_paper as rp
-from katana_paper.contact_sheet import contact_sheet
 from katana_paper.metrics import bernoulli_kl
 from katana_paper.robot_truth import TrueBlock, TruthTable, placement_stayed, truth_schedule
 

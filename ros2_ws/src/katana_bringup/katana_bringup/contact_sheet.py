@@ -1,11 +1,12 @@
 """The contact sheet of a robot run (cf. the paper's Figures 10-12): consecutive experiments of
-a run in another process, one a row, in the paper's four columns - the scene before (the fovea
-and the placement drawn on it), the first image after the grasp, the first after the release,
-and the scene the experiment left, with its label."""
+a run, one a row, in the paper's four columns - the scene before (the fovea and the placement
+drawn on it), the first image after the grasp, the first after the release, and the scene the
+experiment left, with its label. katana-demo records it (`--contact-sheet`) in its own process:
+an observer in another process would first have to discover the run's graph, which can take
+longer than the first experiments (seconds, by the middleware's announcement period)."""
 
 from __future__ import annotations
 
-import os
 import threading
 from collections.abc import Mapping, Sequence
 from functools import partial
@@ -13,24 +14,23 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from katana_bringup.frames import ExperienceFrames, Frames, draw_placement
-from katana_bringup.in_process import InProcessGraph
+from rclpy.node import Node
+
+from .frames import ExperienceFrames, Frames, draw_placement
 
 CONTACT_ROWS = 12
 
 
 class ContactSheetRecorder:
-    """Watches the run in ROS domain `domain_id` (another process on this machine) and keeps
-    the rows of experiments first .. first + rows - 1 for `contact_sheet`."""
+    """Watches the run through `node` (of the run's graph) and keeps the rows of experiments
+    first .. first + rows - 1 for `contact_sheet`."""
 
-    def __init__(self, domain_id: int, first: int, rows: int = CONTACT_ROWS) -> None:
+    def __init__(self, node: Node, first: int, rows: int = CONTACT_ROWS) -> None:
         self.first, self.n = first, rows
         self.rows: list[dict] = []
         self._lock = threading.Lock()
         self._pending = None  # the last row, until the next motion shows the scene it left
-        self.graph = _graph_in_domain(domain_id)
-        self.frames = ExperienceFrames(self.graph.node("contact_recorder"), self._on_experiment,
-                                       phases=True)
+        self.frames = ExperienceFrames(node, self._on_experiment, phases=True)
 
     def _on_experiment(self, msg, frames: Frames) -> None:
         with self._lock:
@@ -59,23 +59,13 @@ class ContactSheetRecorder:
             self.rows.append(row)
             self._pending = (row, partial(drawn, stable=msg.label > 0))
 
-    def close(self) -> None:
-        self.graph.close()
-
-
-def _graph_in_domain(domain_id: int) -> InProcessGraph:
-    """A graph in another ROS domain whose discovery reaches the other processes of this
-    machine (read once, at init; this process's own setting is put back for anything started
-    later)."""
-    saved = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE")
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    try:
-        return InProcessGraph(threads=2, domain_id=domain_id, close_timeout_s=2.0)
-    finally:
-        if saved is None:
-            del os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"]
-        else:
-            os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = saved
+    def write(self, path: Path) -> bool:
+        """The sheet of the rows kept so far into `path`; False (nothing written) if none."""
+        with self._lock:
+            rows = list(self.rows)
+        if rows:
+            contact_sheet(rows, path)
+        return bool(rows)
 
 
 #: the paper's four columns (Figures 10-12)
