@@ -234,16 +234,10 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
                 services = self._enter_handles(services, entered)
                 timers = self._enter_handles(timers, entered)
                 guards = self._enter_handles(guards, entered)
-                in_set = []  # waitables in the wait set
+                in_set = self._enter_handles(waitables, entered, own=True)  # in the wait set
                 counts = [len(subscriptions), len(guards), len(timers), len(clients),
                           len(services), 0]
-                for waitable in waitables:
-                    try:
-                        waitable.__enter__()
-                    except InvalidHandle:
-                        continue
-                    entered.append(waitable)
-                    in_set.append(waitable)
+                for waitable in in_set:
                     counts = [a + b for a, b in zip(counts, self._info(waitable)[0], strict=True)]
                 self._context.handle.__enter__()
                 entered.append(self._context.handle)
@@ -301,25 +295,19 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
                             and tmr.callback_group.can_execute(tmr)):
                         yielded_work = True
                         yield self._make_handler(tmr, node, self._take_timer), tmr, node
-                for sub in node.subscriptions:
-                    if (sub.handle.pointer in subs_ready
-                            and sub.callback_group.can_execute(sub)):
-                        yielded_work = True
-                        yield self._make_handler(sub, node, self._take_subscription), sub, node
+                if subs_ready:
+                    yielded_work |= yield from self._hand_out(
+                        node, node.subscriptions, subs_ready, self._take_subscription)
                 for gc in node.guards:
                     if gc._executor_triggered and gc.callback_group.can_execute(gc):
                         yielded_work = True
                         yield self._make_handler(gc, node, self._take_guard_condition), gc, node
-                for client in node.clients:
-                    if (client.handle.pointer in clients_ready
-                            and client.callback_group.can_execute(client)):
-                        yielded_work = True
-                        yield self._make_handler(client, node, self._take_client), client, node
-                for srv in node.services:
-                    if (srv.handle.pointer in services_ready
-                            and srv.callback_group.can_execute(srv)):
-                        yielded_work = True
-                        yield self._make_handler(srv, node, self._take_service), srv, node
+                if clients_ready:
+                    yielded_work |= yield from self._hand_out(
+                        node, node.clients, clients_ready, self._take_client)
+                if services_ready:
+                    yielded_work |= yield from self._hand_out(
+                        node, node.services, services_ready, self._take_service)
 
             if timeout_ns == 0 or (deadline_ns is not None
                                    and time.monotonic_ns() >= deadline_ns):
@@ -340,16 +328,28 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
                  n.num_services, n.num_events), reports_incompatibility(waitable))
         return info
 
+    def _hand_out(self, node, entities, ready: set, take: Callable):
+        """Handlers for the `entities` whose handle the wait found ready, as rclpy makes them;
+        returns whether it made any."""
+        handed = False
+        for entity in entities:
+            if entity.handle.pointer in ready and entity.callback_group.can_execute(entity):
+                handed = True
+                yield self._make_handler(entity, node, take), entity, node
+        return handed
+
     @staticmethod
-    def _enter_handles(entities: list, entered: list) -> list:
-        """The entities whose handle could be marked in use (a destroyed one is left out)."""
+    def _enter_handles(entities: list, entered: list, own: bool = False) -> list:
+        """The entities whose handle (`own`: the entity itself, a waitable) could be marked in
+        use, each added to `entered`; a destroyed one is left out."""
         kept = []
         for entity in entities:
+            handle = entity if own else entity.handle
             try:
-                entity.handle.__enter__()
+                handle.__enter__()
             except InvalidHandle:
                 continue
-            entered.append(entity.handle)
+            entered.append(handle)
             kept.append(entity)
         return kept
 
