@@ -29,10 +29,26 @@ class ContactSheetRecorder:
         self.first, self.n = first, rows
         self.rows: list[dict] = []
         self._lock = threading.Lock()
+        self._handled = threading.Condition(self._lock)
+        self._last_index = -1  # the last experiment handled
         self._pending = None  # the last row, until the next motion shows the scene it left
         self.frames = ExperienceFrames(node, self._on_experiment, phases=True)
 
+    def wait_for(self, index: int, timeout_s: float) -> bool:
+        """Until experiment `index` has been handled (its row kept, if it has one): the run's
+        last experience may still be on its way when the run ends."""
+        with self._handled:
+            return self._handled.wait_for(lambda: self._last_index >= index, timeout_s)
+
     def _on_experiment(self, msg, frames: Frames) -> None:
+        try:
+            self._keep(msg, frames)
+        finally:
+            with self._handled:
+                self._last_index = max(self._last_index, msg.index)
+                self._handled.notify_all()
+
+    def _keep(self, msg, frames: Frames) -> None:
         with self._lock:
             if self._pending is not None and frames.motion_start is not None:
                 row, draw = self._pending  # the scene before this motion is the scene the

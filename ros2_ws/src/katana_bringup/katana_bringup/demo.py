@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
 from datetime import datetime
 from pathlib import Path
@@ -64,6 +65,8 @@ from .terminal import RunTerminal, experiment_line
 _CURIOSITY = {p.name: p for p in CURIOSITY_PARAMS}
 _SIM = {p.name: p for p in SIM_PARAMS}
 
+#: how long a finished run waits for its last experience to reach the contact sheet (s)
+CONTACT_WAIT_S = 5.0
 FRAMES_FIRST = 6  # frames of the first experiments, then one every FRAMES_EVERY
 FRAMES_EVERY = 25
 
@@ -259,6 +262,16 @@ def _run(args, ros_args: list[str], params: dict, out: Path, new_folder: bool,
     contact = (ContactSheetRecorder(recorder_node, args.contact_first)
                if args.contact_sheet is not None else None)
     learner = next(n for n in nodes if n.get_name() == "curiosity_node")
+    ended = learner.finished
+    if contact is not None:  # and its last experience reached the contact sheet
+        ended = threading.Event()
+
+        def end_when_drawn() -> None:
+            learner.finished.wait()
+            contact.wait_for(learner.experiments - 1, CONTACT_WAIT_S)
+            ended.set()
+
+        threading.Thread(target=end_when_drawn, name="contact sheet end", daemon=True).start()
     clock = SessionClock(out, learner.experiments)
     recorder_node.create_timer(1.0, lambda: clock.beat(learner.experiments))
     shown = learner.experiments  # one line per logged experiment, from the log (complete)
@@ -282,7 +295,7 @@ def _run(args, ros_args: list[str], params: dict, out: Path, new_folder: bool,
     spin_nodes([*nodes, recorder_node], "katana-demo",
                duration_s=args.timeout or 30.0 * args.experiments + 60.0,
                executor=MultiThreadedExecutor(num_threads=EXECUTOR_THREADS),
-               until=learner.finished, limit_s=KATANA_RUN_SHUTDOWN_LIMIT_S)
+               until=ended, limit_s=KATANA_RUN_SHUTDOWN_LIMIT_S)
     show_new()  # the last ones, whose messages the spin may have ended before
     terminal.close()
     if contact is not None and not contact.write(args.contact_sheet):
