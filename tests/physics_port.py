@@ -18,27 +18,34 @@ class PhysicsPort:
         self.sim = sim
         self.slack_s = slack_s  # simulated seconds a motion may overrun its plan
         self.commanded: list[float] | None = None  # as RosArmPort: the last pose moved to
+        self.gripped: float | None = None  # as RosArmPort: where the last grip ended
 
     def move(self, points: list[list[float]], times: list[float],
-             velocities: list[list[float]] | None = None) -> MoveResult:
+             velocities: list[list[float]] | None = None,
+             finger_tolerance: float | None = None) -> MoveResult:
+        watch = {} if finger_tolerance is None else dict.fromkeys(m.FINGER_JOINTS,
+                                                                  finger_tolerance)
         handle = self.sim.start_trajectory(
-            TrajectoryGoal(list(m.ARM_JOINTS), times, points, velocities))
+            TrajectoryGoal(list(m.ARM_JOINTS), times, points, velocities, path_tolerance=watch))
         if run_motion(self.sim, handle, nullcontext(), times[-1] + self.slack_s) != DONE:
             self.sim.cancel_trajectory("timeout")
             return MoveResult(False, "no outcome in time", timed_out=True)
         out = handle.outcome
         ok = out.status == ac.SUCCEEDED
         self.commanded = [float(v) for v in points[-1]] if ok else None
-        return MoveResult(ok, out.message)
+        return MoveResult(ok, out.message,
+                          fingers_moved=ac.fingers_moved(out.error_code, out.message))
 
     def grip(self, position: float, effort: float) -> GripResult:
+        self.gripped = None
         handle = self.sim.start_gripper(position, effort)
         if run_motion(self.sim, handle, nullcontext(), 2.0 + self.slack_s) != DONE:
             self.sim.cancel_gripper()
             return GripResult(False, message="no outcome in time", timed_out=True)
         out = handle.outcome
-        return GripResult(out.status == ac.SUCCEEDED, out.position, out.stalled,
-                          out.reached_goal, out.message)
+        ok = out.status == ac.SUCCEEDED
+        self.gripped = float(out.position) if ok else None
+        return GripResult(ok, out.position, out.stalled, out.reached_goal, out.message)
 
     def joint_positions(self) -> dict[str, float] | None:
         return self.sim.joint_positions()

@@ -22,7 +22,11 @@ API (stable; plain Python in, plain Python out):
   ``positions``/``velocities`` are in ``joint_names`` order; a velocity row may be empty (all
   rows empty = the arm stops at every point). Tolerances are ``{name: rad}`` or a sequence of
   ``(name, rad)`` pairs (pairs let duplicates be detected): 0 = the contract's default,
-  negative = no tolerance (control_msgs' meaning).
+  negative = no tolerance (control_msgs' meaning). A path tolerance may also name a finger joint
+  (``models.FINGER_JOINTS``): an arm trajectory holds the gripper where it is, so the fingers
+  may move at most that far from where they were when the motion started (how a pick-and-place
+  watches a held block slip out while it carries it; the smallest finger tolerance given
+  counts, judged on the fingers' mean angle).
 - ``validate_trajectory(goal, current, contract) -> Verdict``: ``Verdict(SUCCESSFUL, "")`` or
   the error code and a reason. ``current`` maps every arm joint to its measured angle (rad).
   Checked: names (arm joints only, no duplicates, no multi-DOF parts, INVALID_JOINTS; a partial goal
@@ -36,20 +40,24 @@ API (stable; plain Python in, plain Python out):
   ``START_JUMP_RAD`` of ``current``; the peak speed of every cubic Hermite segment (the first from
   ``current`` at rest) within the joint's limit times ``speed_margin``, and its peak acceleration
   within ``max_accel`` (no margin: the controller's limit); tolerances finite, for joints of the
-  goal, no duplicates; ``goal_time_tolerance_s`` finite and >= 0.
+  goal (path tolerances also for the fingers), no duplicates; ``goal_time_tolerance_s`` finite
+  and >= 0.
 - ``complete_trajectory(goal, current) -> TrajectoryGoal``: the goal on all five arm joints in
   ``models.ARM_JOINTS`` order (joints a partial goal leaves out hold ``current``); velocities
   ``None`` when the goal gives none. Call it on a validated goal.
-- ``TrajectoryJudge(goal, contract)``: judges completion of a validated, completed goal.
-  ``judge.check(elapsed_s, desired, actual, at_rest=True) -> Outcome`` with ``elapsed_s``
-  from the start of motion and ``desired``/``actual`` in the goal's joint order. Path
-  tolerances apply while ``elapsed_s < duration_s`` (PATH_TOLERANCE_VIOLATED); after the
+- ``TrajectoryJudge(goal, contract, fingers_start=None)``: judges completion of a validated,
+  completed goal. ``judge.check(elapsed_s, desired, actual, at_rest=True, fingers=None) ->
+  Outcome`` with ``elapsed_s`` from the start of motion and ``desired``/``actual`` in the
+  goal's joint order. Path tolerances apply while ``elapsed_s < duration_s``
+  (PATH_TOLERANCE_VIOLATED); the fingers' only when the backend passes their mean angle
+  (``fingers``), measured from ``fingers_start`` or else from the first angle passed. After the
   last point the goal succeeds once every joint is within its goal tolerance and ``at_rest``
   (the backend's own "motion finished" signal), and fails with GOAL_TOLERANCE_VIOLATED after
   ``goal_time_s`` more. Errors are plain differences ``actual - desired`` (see wrapping above).
 - ``Outcome``: ``status`` (RUNNING, SUCCEEDED, ABORTED, CANCELED), ``error_code``,
   ``message``; ``done``. ``hermite_peak_speed``, ``hermite_peak_accel`` and ``joint_error``
-  are the helpers the rules use.
+  are the helpers the rules use; ``fingers_moved(error_code, error_string)`` tells a stop by a
+  finger tolerance (its message begins with ``FINGERS_MOVED``) from other path errors.
 
 The gripper's goals follow the same contract in :mod:`katana_description.gripper_contract`.
 """
@@ -83,6 +91,17 @@ START_JUMP_RAD = 0.05
 #: The last point's velocities must be zero to within this (rad/s).
 REST_SPEED_RAD_S = 1e-9
 Tolerances = Mapping[str, float] | Sequence[tuple[str, float]]
+
+
+#: How the error string of a goal stopped by its finger path tolerance begins (both backends
+#: answer with this contract's words, so a client tells that stop from a collision, which
+#: control_msgs reports with the same PATH_TOLERANCE_VIOLATED).
+FINGERS_MOVED = "the fingers moved"
+
+
+def fingers_moved(error_code: int, error_string: str) -> bool:
+    """Whether a result is a stop by a path tolerance on the fingers (FINGERS_MOVED)."""
+    return error_code == PATH_TOLERANCE_VIOLATED and error_string.startswith(FINGERS_MOVED)
 
 
 class Verdict(NamedTuple):
@@ -225,11 +244,14 @@ def _pairs(tolerances: Tolerances) -> list[tuple[str, float]]:
 
 def _check_tolerances(kind: str, tolerances: Tolerances, names: Sequence[str]) -> Verdict:
     seen: set[str] = set()
+    held = m.FINGER_JOINTS if kind == "path" else ()
     for name, value in _pairs(tolerances):
-        if name not in names:
+        if name not in names and name not in held:
+            also = f" or a finger joint {list(held)}" if held else ""
             return Verdict(
                 INVALID_JOINTS,
-                (f"{kind} tolerance for {name!r}, which is not a joint of the goal {list(names)}"),
+                (f"{kind} tolerance for {name!r}, which is not a joint of the goal "
+                 f"{list(names)}{also}"),
             )
         if name in seen:
             return Verdict(INVALID_JOINTS, f"{kind} tolerance for {name} given twice")
@@ -446,7 +468,8 @@ def complete_trajectory(goal: TrajectoryGoal, current: Mapping[str, float]) -> T
 class TrajectoryJudge:
     """Completion of one validated goal: path tolerances while it runs, goal tolerances after."""
 
-    def __init__(self, goal: TrajectoryGoal, contract: ArmContract) -> None:
+    def __init__(self, goal: TrajectoryGoal, contract: ArmContract,
+                 fingers_start: float | None = None) -> None:
         self.names = list(goal.joint_names)
         self.final = [float(q) for q in goal.positions[-1]]
         self.duration_s = float(goal.times_s[-1])
@@ -456,6 +479,9 @@ class TrajectoryJudge:
             self._tol(goal_tol.get(n, 0.0), contract.default_goal_tolerance_rad) for n in self.names
         ]
         self.path_tol = [self._tol(path_tol.get(n, 0.0), math.inf) for n in self.names]
+        self.finger_tol = min((self._tol(path_tol[n], math.inf) for n in m.FINGER_JOINTS
+                               if n in path_tol), default=math.inf)
+        self.fingers_start = None if fingers_start is None else float(fingers_start)
         self.goal_time_s = (
             float(goal.goal_time_tolerance_s) or contract.default_goal_time_tolerance_s
         )
@@ -473,11 +499,24 @@ class TrajectoryJudge:
         desired: Sequence[float],
         actual: Sequence[float],
         at_rest: bool = True,
+        fingers: float | None = None,
     ) -> Outcome:
-        """Update and return the outcome from one measurement ``elapsed_s`` after the start."""
+        """Update and return the outcome from one measurement ``elapsed_s`` after the start;
+        ``fingers``: the fingers' mean angle (rad), for a path tolerance on them."""
         if self.outcome.done:
             return self.outcome
+        if fingers is not None and self.fingers_start is None:
+            self.fingers_start = float(fingers)
         if elapsed_s < self.duration_s:
+            if fingers is not None and self.fingers_start is not None:
+                moved = abs(float(fingers) - self.fingers_start)
+                if moved > self.finger_tol:
+                    self.outcome = Outcome(
+                        ABORTED, PATH_TOLERANCE_VIOLATED,
+                        (f"{FINGERS_MOVED} {moved:.4f} rad from {self.fingers_start:.4f} rad "
+                         f"to {float(fingers):.4f} while the arm held them (tolerance "
+                         f"{self.finger_tol:.4f})"))
+                    return self.outcome
             for j, n in enumerate(self.names):
                 err = abs(joint_error(actual[j], desired[j]))
                 if err > self.path_tol[j]:

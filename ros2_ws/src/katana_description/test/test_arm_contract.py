@@ -302,6 +302,65 @@ def test_judge_succeeds_on_the_path_and_flags_a_deviation(case, deviation):
     assert n in out.message
 
 
+def test_a_path_tolerance_may_name_the_held_fingers_a_goal_tolerance_may_not():
+    n = m.ARM_JOINTS[0]
+    fingers = m.FINGER_JOINTS[0]
+    path = ac.TrajectoryGoal([n], [2.0], [[REST[n]]], path_tolerance={fingers: 0.05})
+    assert ac.validate_trajectory(path, REST, CONTRACT).ok
+    goal = ac.TrajectoryGoal([n], [2.0], [[REST[n]]], goal_tolerance={fingers: 0.05})
+    verdict = ac.validate_trajectory(goal, REST, CONTRACT)
+    assert verdict.error_code == ac.INVALID_JOINTS and fingers in verdict.error_string
+    twice = ac.TrajectoryGoal([n], [2.0], [[REST[n]]],
+                              path_tolerance=[(fingers, 0.05), (fingers, 0.1)])
+    assert ac.validate_trajectory(twice, REST, CONTRACT).error_code == ac.INVALID_JOINTS
+
+
+@settings(max_examples=200, deadline=None)
+@given(valid_goals(partial=False), st.floats(1e-3, 0.3), st.floats(1e-3, 0.3),
+       st.floats(-0.5, 0.5), st.sampled_from(["right", "left", "both"]),
+       st.booleans(), st.floats(0.0, 1.5))
+def test_the_fingers_held_by_a_trajectory_stop_it_when_they_move(
+        case, tol_r, tol_l, moved, which, given_start, when):
+    """A finger path tolerance stops the motion, while it runs, exactly when the fingers'
+    angle is further than the smallest given tolerance from where they started (given, or the
+    first angle judged); after the plan's end only the goal tolerances count."""
+    goal, current = case
+    tols = {"right": {m.FINGER_JOINTS[0]: tol_r}, "left": {m.FINGER_JOINTS[1]: tol_l},
+            "both": {m.FINGER_JOINTS[0]: tol_r, m.FINGER_JOINTS[1]: tol_l}}[which]
+    tolerance = min(tols.values())
+    goal = ac.TrajectoryGoal(goal.joint_names, goal.times_s, goal.positions,
+                             path_tolerance=tols)
+    start = 0.2
+    judge = ac.TrajectoryJudge(goal, CONTRACT, fingers_start=start if given_start else None)
+    desired = [current[x] for x in goal.joint_names]
+    # on the path, or up to half the goal time after its end (the goal is not yet late)
+    end = goal.times_s[-1]
+    late_s = CONTRACT.default_goal_time_tolerance_s
+    elapsed = when * end if when < 1.0 else end + (when - 1.0) * late_s
+    if not given_start:  # the first angle judged is where they started
+        assert not judge.check(0.0, desired, desired, at_rest=False, fingers=start).done
+    out = judge.check(elapsed, desired, desired, at_rest=False, fingers=start + moved)
+    stops = elapsed < goal.times_s[-1] and abs(moved) > tolerance
+    assert out.done == stops
+    if stops:
+        assert (out.status, out.error_code) == (ac.ABORTED, ac.PATH_TOLERANCE_VIOLATED)
+        assert ac.fingers_moved(out.error_code, out.message)
+    # without the fingers' angle, or without a tolerance on them, nothing is judged on them
+    blind = ac.TrajectoryJudge(goal, CONTRACT, fingers_start=start)
+    assert not blind.check(elapsed, desired, desired, at_rest=False).done
+    free = ac.TrajectoryJudge(dataclasses.replace(goal, path_tolerance={}), CONTRACT, start)
+    assert not free.check(elapsed, desired, desired, at_rest=False, fingers=start + moved).done
+
+
+def test_an_arm_path_error_is_not_a_finger_stop():
+    n = m.ARM_JOINTS[0]
+    goal = ac.TrajectoryGoal([n], [2.0], [[REST[n]]], path_tolerance={n: 0.01})
+    out = ac.TrajectoryJudge(goal, CONTRACT).check(1.0, [REST[n]], [REST[n] + 0.1])
+    assert out.error_code == ac.PATH_TOLERANCE_VIOLATED
+    assert not ac.fingers_moved(out.error_code, out.message)
+    assert not ac.fingers_moved(ac.GOAL_TOLERANCE_VIOLATED, ac.FINGERS_MOVED + " 0.1 rad")
+
+
 def test_judge_goal_tolerance_and_settle_time():
     names = list(m.ARM_JOINTS)
     final = [REST[n] for n in names]

@@ -8,9 +8,11 @@ import time
 
 from action_msgs.msg import GoalStatus
 from control_msgs.action import FollowJointTrajectory, GripperCommand
+from control_msgs.msg import JointTolerance
 from katana_common.action_client import ActionClient
 from katana_common.futures import Stopped, wait_for_future
 from katana_common.messages import duration_msg
+from katana_description import arm_contract as ac
 from katana_description import models as m
 from trajectory_msgs.msg import JointTrajectoryPoint
 
@@ -26,6 +28,7 @@ class RosArmPort:
     def __init__(self, node) -> None:
         self.node = node
         self.commanded: list[float] | None = None  # last arm pose a move succeeded to
+        self.gripped: float | None = None  # where the last gripper goal that succeeded ended
 
     def _send(self, client: ActionClient, name: str, goal, result_timeout_s: float):
         """(result, '') or (None, why) for a refusal or ("timeout", why) for a wait that ran out.
@@ -58,9 +61,13 @@ class RosArmPort:
         return planned_s * self.node.params["time_scale"] + self.node.params["timeout_margin_s"]
 
     def move(self, points: list[list[float]], times: list[float],
-             velocities: list[list[float]] | None = None) -> pp.MoveResult:
+             velocities: list[list[float]] | None = None,
+             finger_tolerance: float | None = None) -> pp.MoveResult:
         goal = FollowJointTrajectory.Goal()
         goal.trajectory.joint_names = list(m.ARM_JOINTS)
+        if finger_tolerance is not None:
+            goal.path_tolerance = [JointTolerance(name=n, position=float(finger_tolerance))
+                                   for n in m.FINGER_JOINTS]
         vels = velocities or [[] for _ in points]
         goal.trajectory.points = [
             JointTrajectoryPoint(positions=list(q), velocities=list(v),
@@ -71,9 +78,10 @@ class RosArmPort:
         res, why = self._send(self.node.arm_client, ARM_ACTION, goal, self._timeout_s(times[-1]))
         if res is None or res == "timeout":
             return pp.MoveResult(False, why, timed_out=res == "timeout")
-        if res.result.error_code != FollowJointTrajectory.Result.SUCCESSFUL:
-            msg = res.result.error_string or f"error code {res.result.error_code}"
-            return pp.MoveResult(False, msg)
+        code, text = res.result.error_code, res.result.error_string
+        if code != FollowJointTrajectory.Result.SUCCESSFUL:
+            return pp.MoveResult(False, text or f"error code {code}",
+                                 fingers_moved=ac.fingers_moved(code, text))
         self.commanded = [float(v) for v in points[-1]]
         return pp.MoveResult(True)
 
@@ -81,11 +89,13 @@ class RosArmPort:
         goal = GripperCommand.Goal()
         goal.command.position = float(position)
         goal.command.max_effort = float(effort)
+        self.gripped = None  # until this goal has succeeded
         res, why = self._send(self.node.gripper_client, GRIPPER_ACTION, goal, self._timeout_s(3.0))
         if res is None or res == "timeout":
             return pp.GripResult(False, message=why, timed_out=res == "timeout")
         r = res.result
         ok = res.status == GoalStatus.STATUS_SUCCEEDED
+        self.gripped = float(r.position) if ok else None
         return pp.GripResult(ok, r.position, r.stalled, r.reached_goal,
                              "" if ok else f"gripper goal ended with status {res.status}")
 

@@ -7,6 +7,7 @@ import threading
 
 import numpy as np
 import pytest
+from katana_description import arm_contract as ac
 from katana_description import models as m
 from katana_manipulation.core import pick_place as pp
 from katana_manipulation.core import planner as planner_module
@@ -92,9 +93,11 @@ class FakePort:
     def __init__(self, fingers: float) -> None:
         self.fingers = fingers
         self.calls: list[str] = []
+        self.watches: list[float | None] = []  # each move's finger tolerance
 
-    def move(self, points, times, velocities=None):
+    def move(self, points, times, velocities=None, finger_tolerance=None):
         self.calls.append("move")
+        self.watches.append(finger_tolerance)
         return pp.MoveResult(True)
 
     def joint_positions(self):
@@ -104,7 +107,8 @@ class FakePort:
 
 
 class ScriptedPort(FakePort):
-    """A fake arm whose fingers close further after the grasp: the block slipped."""
+    """A fake arm whose fingers close on nothing during the move carrying the block (the block
+    slipped out), stopped there by the arm contract's finger tolerance when the move has one."""
 
     def __init__(self) -> None:
         super().__init__(fingers=0.3)
@@ -114,10 +118,48 @@ class ScriptedPort(FakePort):
         self.fingers = -0.165 if position < -0.4 else position
         return pp.GripResult(True, self.fingers, position < -0.4, position >= -0.4)
 
-    def joint_positions(self):
-        if self.calls.count("move") >= 3:  # during the carry: fingers closed on nothing
-            self.fingers = -0.44
-        return super().joint_positions()
+    def move(self, points, times, velocities=None, finger_tolerance=None):
+        super().move(points, times, velocities, finger_tolerance)
+        if self.calls.count("move") != 2:  # the second move carries the block
+            return pp.MoveResult(True)
+        start, self.fingers = self.fingers, -0.44
+        judge = ac.TrajectoryJudge(
+            ac.TrajectoryGoal(m.ARM_JOINTS, times, points, path_tolerance=dict.fromkeys(
+                m.FINGER_JOINTS, -1.0 if finger_tolerance is None else finger_tolerance)),
+            ac.ArmContract(), fingers_start=start)
+        out = judge.check(times[-1] / 2, points[0], points[0], fingers=self.fingers)
+        if not out.done:
+            return pp.MoveResult(True)
+        return pp.MoveResult(False, out.message,
+                             fingers_moved=ac.fingers_moved(out.error_code, out.message))
+
+
+def test_a_slip_while_carrying_stops_the_arm_there():
+    """Lift, carry and lower are one move, sent with the slip tolerance on the fingers (and
+    only that move): the backend stops it where the fingers close on nothing, and the result
+    is a slip, found in the move and not by the check after it."""
+    port = ScriptedPort()
+    req = pp.PickPlaceRequest((0.2, 0.0, 0.015), 0.0, (0.04, 0.04, 0.03), (0.2, 0.1, 0.015), 0.0)
+    planner = pp.PickPlacePlanner()
+    res = pp.execute_pick_place(req, port, planner)
+    assert res.code == pp.BLOCK_SLIPPED and "slipped" in res.message, res.message
+    assert res.phase == "lift" and "lift/carry/lower: the fingers moved" in res.message
+    assert port.watches[:2] == [None, planner.p.slip_tolerance]
+    assert all(w is None for w in port.watches[2:])  # the recovery moves are not watched
+
+
+def test_a_slip_past_the_watch_is_found_by_the_check_before_the_release():
+    """A backend that does not judge the finger tolerance (the fingers close, the move
+    succeeds): the check after the lowering still finds the slip, before the release."""
+
+    class Unwatched(ScriptedPort):
+        def move(self, points, times, velocities=None, finger_tolerance=None):
+            return super().move(points, times, velocities, None)
+
+    port = Unwatched()
+    req = pp.PickPlaceRequest((0.2, 0.0, 0.015), 0.0, (0.04, 0.04, 0.03), (0.2, 0.1, 0.015), 0.0)
+    res = pp.execute_pick_place(req, port, pp.PickPlacePlanner())
+    assert res.code == pp.BLOCK_SLIPPED and res.phase == "lower", res.message
 
 
 def test_slip_and_unresponsive_arm_are_reported():
@@ -127,7 +169,7 @@ def test_slip_and_unresponsive_arm_are_reported():
     assert res.code == pp.BLOCK_SLIPPED and "slipped" in res.message
 
     class Dead(ScriptedPort):
-        def move(self, points, times, velocities=None):
+        def move(self, points, times, velocities=None, finger_tolerance=None):
             return pp.MoveResult(False, "no result within 3.0 s", timed_out=True)
 
     res = pp.execute_pick_place(req, Dead(), pp.PickPlacePlanner())
@@ -175,7 +217,7 @@ def test_a_release_that_leaves_the_block_held_stops_the_arm_where_it_is():
     assert "still held" in res.message
     # the release, one wide opening more, and nothing after: a retreat would drag the block
     assert port.calls[-2:] == [port.calls[-2], f"grip {m.GRIPPER_OPEN:.3f}"]
-    assert port.calls[-3] == "move" and port.calls.count("move") == 4  # up to the lowering
+    assert port.calls[-3] == "move" and port.calls.count("move") == 2  # up to the lowering
 
 
 def test_a_release_that_opens_on_the_second_try_goes_on():
@@ -252,6 +294,38 @@ def test_the_fingers_open_while_the_moves_are_planned():
     expected = ["move" if s.kind == "arm" else f"grip {s.position:.3f}"
                 for s in segs if s.kind in ("arm", "grip")]
     assert port.calls == expected
+
+
+class RememberingPort(JammedRelease):
+    """Remembers where its last grip ended, as RosArmPort and the physics port do."""
+
+    def __init__(self) -> None:
+        super().__init__(jammed_opens=0)
+        self.gripped: float | None = None
+
+    def grip(self, position, effort):
+        out = super().grip(position, effort)
+        self.gripped = out.position
+        return out
+
+
+def test_fingers_left_at_the_opening_need_no_gripper_goal():
+    """The release leaves the fingers at the pregrasp opening of a block of the same size, so
+    the next pick-and-place sends no goal to open them; fingers found elsewhere (moved by
+    someone else since) get one."""
+    planner = pp.PickPlacePlanner()
+    segs = planner.plan(REQ, m.PARK_POSE)
+    opening = f"grip {segs[0].position:.3f}"
+    port = RememberingPort()
+    assert pp.execute_pick_place(REQ, port, planner).success
+    assert port.calls[0] == opening and port.gripped == pytest.approx(segs[0].position)
+    port.calls.clear()
+    assert pp.execute_pick_place(REQ, port, planner).success
+    assert port.calls[0] == "move" and port.calls.count(opening) == 1  # the release's only
+    port.calls.clear()
+    port.fingers = m.GRIPPER_OPEN  # the gripper moved behind the port's back
+    assert pp.execute_pick_place(REQ, port, planner).success
+    assert port.calls[0] == opening
 
 
 def test_a_goal_out_of_reach_moves_nothing():

@@ -217,6 +217,43 @@ def test_gripper_holds_a_block_by_friction_only(world):
     assert abs(world.block_pose("red")[0][2] - 0.015) < 2e-3
 
 
+@pytest.mark.parametrize("watch", [None, 0.05])
+def test_a_block_slipping_out_stops_a_trajectory_that_watches_the_fingers(world, watch):
+    """A lift with the block taken out of the closed fingers (a slip): with a path tolerance on
+    the fingers the arm stops where they closed past it, near where it started; without one it
+    lifts the empty hand all the way."""
+    world.reset(0)
+    world.set_block_pose("red", (0.2, 0.0, 0.015), 0.0)
+    q = [0.0, 1.177257, -1.593299, 1.154754, 0.0]  # tool top-down at (0.2, 0, 0.018)
+    world.set_arm_positions(q, 0.0)
+    world.step(20)
+    h = world.start_gripper(m.GRIPPER_CLOSED)
+    while not h.outcome.done:
+        world.step(6)
+    held = h.outcome.position
+    up = [0.0, 1.243947, -1.24856, 1.566184, 0.0]  # 6 cm higher
+    tolerance = {} if watch is None else dict.fromkeys(m.FINGER_JOINTS, watch)
+    h = world.start_trajectory(TrajectoryGoal(list(m.ARM_JOINTS), [1.2], [up],
+                                              path_tolerance=tolerance))
+    steps = 0
+    while not h.outcome.done:
+        world.step(6)
+        steps += 6
+        if steps == 60:  # 0.2 s into the lift
+            world.set_block_pose("red", (0.0, 0.25, 0.015), 0.0)
+    fingers = np.mean([world.joint_positions()[n] for n in m.FINGER_JOINTS])
+    arm = np.array([world.joint_positions()[n] for n in m.ARM_JOINTS])
+    if watch is None:
+        assert h.outcome.status == ac.SUCCEEDED and np.abs(arm - up).max() < 0.02
+        assert fingers < held - 0.1  # closed on nothing, unseen
+        return
+    assert ac.fingers_moved(h.outcome.error_code, h.outcome.message), h.outcome
+    world.step(60)  # stopped: the arm holds where the fingers moved, short of the lift
+    after = np.array([world.joint_positions()[n] for n in m.ARM_JOINTS])
+    assert np.abs(after - arm).max() < 0.02
+    assert np.abs(after - q).max() < 0.5 * np.abs(np.subtract(up, q)).max()
+
+
 @pytest.mark.parametrize(
     ("kwargs", "param"),
     [

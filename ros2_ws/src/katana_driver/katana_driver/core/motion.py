@@ -100,7 +100,7 @@ def run_trajectory(
         plan = _plan(model, state.encoders, full, contract, worker)
     except TrajectoryError as exc:
         return ac.Outcome(ac.ABORTED, ac.INVALID_GOAL, str(exc))
-    judge = ac.TrajectoryJudge(full, contract)
+    judge = ac.TrajectoryJudge(full, contract, fingers_start=state.positions[5])
     stream = worker.start_trajectory(plan)
     try:
         t0 = stream.started.result(timeout=START_TIMEOUT_S)
@@ -180,7 +180,7 @@ def _judge(judge, plan, stream, state: ArmState, t0: float, feedback) -> ac.Outc
     feedback(TrajectoryFeedback(elapsed, list(desired), actual))
     end = t0 + stream.lag_s + plan.duration_s
     at_rest = state.status_stamp >= end and all(s in DONE_STATUS for s in state.status[:5])
-    return judge.check(elapsed, desired, actual, at_rest=at_rest)
+    return judge.check(elapsed, desired, actual, at_rest=at_rest, fingers=state.positions[5])
 
 
 def run_gripper(

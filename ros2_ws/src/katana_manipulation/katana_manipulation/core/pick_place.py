@@ -19,6 +19,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from katana_description import models as m
+from katana_description.arm_contract import ArmContract
 
 from katana_manipulation.core.pick_place_types import (
     ABORTED,
@@ -55,7 +56,7 @@ __all__ = [
     "PLACE_UNREACHABLE", "SIM_MIN_SEGMENT_TIME_S", "SUCCESS", "TIMEOUT", "UNREACHABLE",
     "WORKSPACE_XY", "ArmPort", "GripResult", "MoveResult", "PickPlaceParams", "PickPlaceRequest",
     "PickPlaceResult", "PlanError", "ReachGeometry", "Segment", "PickPlacePlanner", "ProgressFn",
-    "execute_pick_place", "HOLD_TOLERANCE_RAD", "planning_start",
+    "execute_pick_place", "HOLD_TOLERANCE_RAD", "GRIP_THERE_RAD", "planning_start",
 ]
 
 ProgressFn = Callable[[str, float], None]
@@ -79,13 +80,19 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
         return PickPlaceResult(False, exc.code, str(exc))
     # Every plan opens the fingers first: they move while the arm's moves are planned, on a
     # thread of its own (planning reads only its arguments and the planner's settings, so the
-    # plan is the one made before the fingers moved).
+    # plan is the one made before the fingers moved). Fingers still where the port's last grip
+    # left them at that opening (the release of the pick before, of a block of the same size)
+    # need no gripper goal.
+    gripped = getattr(port, "gripped", None)
+    there = (gripped is not None and abs(gripped - opening) <= GRIP_THERE_RAD
+             and abs(_fingers(joints) - gripped) <= HOLD_TOLERANCE_RAD)
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="pick_place_planning") as pool:
         planning = pool.submit(planner.plan, req, current)
         g = None
         if not cancelled():
             feedback("approach", PHASES.index("approach") / len(PHASES))
-            g = port.grip(opening, planner.p.grip_effort)
+            g = (GripResult(True, gripped, reached_goal=True) if there
+                 else port.grip(opening, planner.p.grip_effort))
         try:
             segments = planning.result()
         except PlanError as exc:  # the fingers may have opened, in the air: nothing else moved
@@ -109,11 +116,15 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
         for phase in (seg.phase, *seg.also):
             feedback(phase, PHASES.index(phase) / len(PHASES))
         if seg.kind == "arm":
-            res = port.move(seg.points, seg.times, seg.velocities or None)
+            watch = planner.p.slip_tolerance if seg.holding else None
+            res = port.move(seg.points, seg.times, seg.velocities or None, watch)
             if not res.ok:
-                code = TIMEOUT if res.timed_out else ARM_DID_NOT_REACH
                 _recover(port, planner, holding)
-                return PickPlaceResult(False, code, f"{seg.phase}: {res.message}", seg.phase)
+                if res.fingers_moved:  # the backend stopped the arm there
+                    return PickPlaceResult(False, BLOCK_SLIPPED, f"{_phases(seg)}: "
+                                           f"{res.message}: the block slipped out", seg.phase)
+                code = TIMEOUT if res.timed_out else ARM_DID_NOT_REACH
+                return PickPlaceResult(False, code, f"{_phases(seg)}: {res.message}", seg.phase)
         elif seg.kind == "grip":
             g = port.grip(seg.position, planner.p.grip_effort)
             if not g.ok:
@@ -151,7 +162,7 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
             if joints is None:
                 _recover(port, planner, holding)
                 return PickPlaceResult(False, TIMEOUT, "joint_states stopped", seg.phase)
-            fingers = float(np.mean([joints[n] for n in m.FINGER_JOINTS]))
+            fingers = _fingers(joints)
             if fingers < grip_at - planner.p.slip_tolerance:
                 _recover(port, planner, holding=True)
                 return PickPlaceResult(
@@ -164,6 +175,19 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
 
 #: the arm holds within this of where it was last sent (rad) for that pose to count as "here"
 HOLD_TOLERANCE_RAD = 0.02
+#: fingers this close to a goal (rad) are there: a gripper goal would end at once (the arm
+#: contract's gripper_tolerance_rad)
+GRIP_THERE_RAD = ArmContract.gripper_tolerance_rad
+
+
+def _fingers(joints: dict[str, float]) -> float:
+    return float(np.mean([joints[n] for n in m.FINGER_JOINTS]))
+
+
+def _phases(seg: Segment) -> str:
+    """The phases a (merged) move runs through, for messages: 'lift/carry/lower'."""
+    return "/".join((seg.phase, *seg.also))
+
 
 
 def planning_start(measured: Sequence[float], commanded: Sequence[float] | None) -> list[float]:

@@ -128,6 +128,7 @@ class MoveResult:
     ok: bool
     message: str = ""
     timed_out: bool = False
+    fingers_moved: bool = False  # stopped by its finger tolerance (arm_contract.fingers_moved)
 
 
 @dataclass
@@ -144,9 +145,13 @@ class ArmPort(Protocol):
     """What the sequence needs from an arm. Every call returns within a bounded time."""
 
     def move(self, points: list[list[float]], times: list[float],
-             velocities: list[list[float]] | None = None) -> MoveResult:
+             velocities: list[list[float]] | None = None,
+             finger_tolerance: float | None = None) -> MoveResult:
         """Follow arm-joint waypoints (ARM_JOINTS order) at times from start (s), passing them
-        at the given velocities (None: at rest)."""
+        at the given velocities (None: at rest). With a finger tolerance (rad) the backend
+        stops the arm as soon as the fingers move further than that from where they were at
+        the start (the arm contract's path tolerance on a finger joint): a held block slipping
+        out lets them close."""
         ...
 
     def grip(self, position: float, effort: float) -> GripResult: ...
@@ -165,6 +170,7 @@ class Segment:
     start: list[float] = field(default_factory=list)  # arm pose the move starts from
     waypoints: list = field(default_factory=list)  # what `timed` made points/times of
     also: tuple[str, ...] = ()  # later phases this move runs through (merged moves)
+    holding: bool = False  # an arm move carrying the block: the fingers are watched for a slip
 
 
 class PlanError(Exception):

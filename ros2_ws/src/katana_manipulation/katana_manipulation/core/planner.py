@@ -451,9 +451,11 @@ class PickPlacePlanner:
         t_here, t_pick, t_place, t_park = transits
         segs: list[Segment] = []
 
-        def arm(phase: str, start: np.ndarray, pts: list[np.ndarray]) -> np.ndarray:
+        def arm(phase: str, start: np.ndarray, pts: list[np.ndarray],
+                holding: bool = False) -> np.ndarray:
             if len(_distinct(start, pts)) > 1:  # a move (`timed` gives it points): timed
-                segs.append(Segment(phase, "arm", start=list(start), waypoints=list(pts)))
+                segs.append(Segment(phase, "arm", start=list(start), waypoints=list(pts),
+                                    holding=holding))
             return pts[-1]  # once, in _merged, with the moves it runs into
 
         q, approach_pts = current, []
@@ -469,15 +471,16 @@ class PickPlacePlanner:
         segs.append(Segment("grasp", "grip", position=m.GRIPPER_CLOSED))
         segs.append(Segment("grasp", "check",
                             position=m.finger_angle_for_opening(e.grip_width)))
+        # lift, carry and lower run as one move, the fingers watched for a slip all along it;
+        # the check after it judges the grip where the block is about to be let go
         q = arm("lift", q, self._vertical(q, (e.grasp_xyz[0], e.grasp_xyz[1], e.z_above_pick),
                                           e.yaw_grip, e.q_grasp[4], e.grasp_xyz[2])
-                + [e.q_above_pick])
-        segs.append(Segment("lift", "check"))
+                + [e.q_above_pick], holding=True)
         down = self._via(e.q_above_place, c.place_held, t_place)[::-1][1:] + [e.q_above_place]
-        q = arm("carry", q, [*self._via(e.q_above_pick, c.pick_held, t_pick), t_place, *down])
-        segs.append(Segment("carry", "check"))
+        q = arm("carry", q, [*self._via(e.q_above_pick, c.pick_held, t_pick), t_place, *down],
+                holding=True)
         q = arm("lower", q, self._vertical(q, e.place_xyz, e.place_yaw_grip, e.q_place[4],
-                                           e.z_above_place) + [e.q_place])
+                                           e.z_above_place) + [e.q_place], holding=True)
         segs.append(Segment("lower", "check"))
         segs.append(Segment("release", "grip", position=c.release))
         # the fingers must have let go: open at least half the pregrasp margin past the block
@@ -492,17 +495,19 @@ class PickPlacePlanner:
         return segs
 
     def _merged(self, segs: list[Segment]) -> list[Segment]:
-        """Run consecutive arm moves as one trajectory: one goal instead of two, and no stop
-        between them (approach into descend, retreat into park), on the same waypoints. Each
+        """Run consecutive arm moves as one trajectory: one goal instead of several, and no stop
+        between them (approach into descend; lift, carry and lower; retreat into park), on the
+        same waypoints. Each
         trajectory is timed here, once: timing the moves before merging them was most of the
         planning time of a pick-and-place, spent on timings nobody ran."""
         out: list[Segment] = []
         for seg in segs:
             prev = out[-1] if out else None
-            if seg.kind == "arm" and prev is not None and prev.kind == "arm":
+            if (seg.kind == "arm" and prev is not None and prev.kind == "arm"
+                    and seg.holding == prev.holding):
                 out[-1] = Segment(prev.phase, "arm", start=prev.start,
                                   waypoints=prev.waypoints + seg.waypoints,
-                                  also=(*prev.also, seg.phase))
+                                  also=(*prev.also, seg.phase), holding=seg.holding)
             else:
                 out.append(seg)
         for seg in out:

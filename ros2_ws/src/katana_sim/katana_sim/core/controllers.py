@@ -29,7 +29,7 @@ class TrajectoryFollower:
     (zero velocity at points that give none), from the motor targets at the start."""
 
     def __init__(self, goal: TrajectoryGoal, contract: ArmContract, start_time: float,
-                 start_q: Sequence[float]) -> None:
+                 start_q: Sequence[float], fingers_start: float | None = None) -> None:
         self.names = list(goal.joint_names)
         self.t0 = start_time
         times = [0.0, *(float(t) for t in goal.times_s)]
@@ -40,7 +40,7 @@ class TrajectoryFollower:
         if times[1] <= 0.0:  # first point at t=0: start there (validated to be close)
             times, q, v = times[1:], q[1:], v[1:]
         self._times, self._q, self._v = np.array(times), np.array(q), np.array(v)
-        self.judge = TrajectoryJudge(goal, contract)
+        self.judge = TrajectoryJudge(goal, contract, fingers_start)
 
     @property
     def outcome(self) -> Outcome:
@@ -82,11 +82,12 @@ class TrajectoryFollower:
         return pos, vel
 
     def check(self, t: float, actual: np.ndarray, at_rest: bool,
-              desired: np.ndarray | None = None) -> Outcome:
-        """Judge a measurement at t; `desired` is sample(t) when the caller has it already."""
+              desired: np.ndarray | None = None, fingers: float | None = None) -> Outcome:
+        """Judge a measurement at t; `desired` is sample(t) when the caller has it already;
+        `fingers` the fingers' mean angle, which the trajectory holds."""
         if desired is None:
             desired, _ = self.sample(t)
-        return self.judge.check(t - self.t0, desired.tolist(), list(actual), at_rest)
+        return self.judge.check(t - self.t0, desired.tolist(), list(actual), at_rest, fingers)
 
 
 class GripperController:

@@ -364,7 +364,8 @@ class PhysicsSim:
             return ArmHandle(_Refused(ctl.refused(verdict.error_code, verdict.error_string)))
         self.cancel_trajectory("preempted by a new goal")
         full = ctl_complete(goal, current)
-        follower = ctl.TrajectoryFollower(full, self.contract, 0.0, self._targets[:5])
+        fingers = sum(current[n] for n in m.FINGER_JOINTS) / len(m.FINGER_JOINTS)
+        follower = ctl.TrajectoryFollower(full, self.contract, 0.0, self._targets[:5], fingers)
         follower.start_step = self._steps
         self._trajectory = follower
         return ArmHandle(follower)
@@ -724,7 +725,8 @@ class PhysicsSim:
         pos, vel, _ = self.joint_state()
         traj = self._trajectory
         if traj is not None:
-            if traj.check(self.elapsed(traj), pos[:5], ctl.rest(vel[:5]), desired).done:
+            if traj.check(self.elapsed(traj), pos[:5], ctl.rest(vel[:5]), desired,
+                          float(pos[5:].mean())).done:
                 self._target_vel[:5] = 0.0
                 self._trajectory = None
         grip = self._gripper
