@@ -3,6 +3,8 @@
 import functools
 import itertools
 import math
+import struct
+import threading
 
 import pytest
 import rclpy
@@ -21,7 +23,7 @@ from katana_common.testing import call_service, spin_until
 from katana_description import arm_contract as ac
 from katana_driver.core import encoders
 from katana_driver.core import protocol as p
-from katana_driver.core.encoders import ALL_JOINTS, ARM_JOINTS, EncoderModel
+from katana_driver.core.encoders import ALL_JOINTS, ARM_JOINTS, FINGER_JOINTS, EncoderModel
 from katana_driver.katana_driver_node import KatanaDriverNode
 from katana_driver.testing import seconds_between
 from katana_interfaces.srv import ResetWorld, SetMotors
@@ -236,6 +238,53 @@ def test_collision_aborts_with_the_controllers_message(graph):
     # The next goal unblocks the motors and runs.
     res = g.run_goal(g.arm, trajectory_goal([(2.0, [-2.5, 1.8, -1.8, -1.5, -2.5])]))
     assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.error_string
+
+
+@pytest.mark.parametrize("watched", [True, False])
+def test_a_finger_tolerance_stops_the_arm_when_the_fingers_move(graph, watched):
+    """A trajectory with a path tolerance on the fingers (which it holds) is stopped, the arm
+    frozen where it is, once the gripper's reading moves past it: the pick-and-place's watch
+    for a block slipping out. Without one the same reading changes nothing."""
+    g = graph()
+    g.ready()
+    model = g.emulator.model
+    answer = model._dispatch
+    slipped = threading.Event()
+    drift_enc = 3000
+
+    def reading(cmd, pl):  # the gripper's encoder read as if the fingers had closed further
+        out = answer(cmd, pl)
+        if slipped.is_set() and cmd == ord("N") and pl[1] == 3:
+            enc = list(struct.unpack(">6h", out[1:13]))
+            enc[5] -= drift_enc
+            out = b"n" + struct.pack(">6h", *enc)
+        return out
+
+    model._dispatch = reading
+    here = model.encoders()[5]
+    moved = abs(g.driver.model.gripper_encoder_to_angle(here - drift_enc)
+                - g.driver.model.gripper_encoder_to_angle(here))
+    assert moved > 0.1
+    target = [-1.5, 1.2, -1.0, -0.5, -1.5]
+    goal = trajectory_goal([(3.0, target)])
+    if watched:
+        goal.path_tolerance = [JointTolerance(name=n, position=0.05) for n in FINGER_JOINTS]
+    sent = g.arm.send_goal_async(goal)
+    assert g.spin_until(sent.done)
+    result = sent.result().get_result_async()
+    assert g.spin_until(lambda: g.driver.worker.state.status[0] == p.STATUS_MOVING)
+    slipped.set()
+    assert g.spin_until(result.done)
+    res = result.result()
+    if not watched:
+        assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.error_string
+        return
+    assert res.status == GoalStatus.STATUS_ABORTED
+    assert ac.fingers_moved(res.result.error_code, res.result.error_string), res.result
+    assert g.spin_until(lambda: model.statuses()[:5] == [p.STATUS_HOLDING] * 5)
+    enc = model.encoders()
+    stopped = [g.driver.model.encoder_to_angle(i + 1, enc[i]) for i in range(5)]
+    assert max(abs(a - b) for a, b in zip(stopped, target, strict=True)) > 0.2  # short of it
 
 
 def test_cancel_stops_the_arm(graph):
