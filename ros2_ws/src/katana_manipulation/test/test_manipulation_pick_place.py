@@ -144,7 +144,7 @@ def test_a_slip_while_carrying_stops_the_arm_there():
     res = pp.execute_pick_place(req, port, planner)
     assert res.code == pp.BLOCK_SLIPPED and "slipped" in res.message, res.message
     assert res.phase == "lift" and "lift/carry/lower: the fingers moved" in res.message
-    assert port.watches[:2] == [None, planner.p.slip_tolerance]
+    assert port.watches[:2] == [None, planner.p.carry_slip_tolerance]
     assert all(w is None for w in port.watches[2:])  # the recovery moves are not watched
 
 

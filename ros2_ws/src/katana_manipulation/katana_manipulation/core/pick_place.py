@@ -116,7 +116,7 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
         for phase in (seg.phase, *seg.also):
             feedback(phase, PHASES.index(phase) / len(PHASES))
         if seg.kind == "arm":
-            watch = planner.p.slip_tolerance if seg.holding else None
+            watch = planner.p.carry_slip_tolerance if seg.holding else None
             res = port.move(seg.points, seg.times, seg.velocities or None, watch)
             if not res.ok:
                 _recover(port, planner, holding)

@@ -96,6 +96,10 @@ class PickPlaceParams:
     descend_points: int = 3  # intermediate points that keep descents nearly vertical
     miss_tolerance: float = 0.08  # rad: fingers closing this far past the block: missed
     slip_tolerance: float = 0.05  # rad: fingers closing this much further: slipped
+    # rad: fingers closing this much further while the arm carries the block stop it (slipped);
+    # lifting a block off its support squeezes it, the fingers closing by up to 0.06 rad in the
+    # sim (bench_arm's trials), and a block gone lets them close by 0.17 rad or more
+    carry_slip_tolerance: float = 0.1
     grip_effort: float = 0.0  # N m, 0: the gripper's default
     park_pose: Sequence[float] = field(default_factory=lambda: list(m.PARK_POSE))
     # finger angle to park with; None: keep the release opening (the next pick starts there, so
