@@ -186,25 +186,35 @@ def test_bad_trajectories_are_refused_with_a_reason(world, names, points, times,
     assert not world.busy
 
 
-def test_gripper_holds_a_block_by_friction_only(world):
+#: the tool top-down at (0.2, 0, 0.018), where the red block is grasped; 6 cm higher
+GRASP_Q = [0.0, 1.177257, -1.593299, 1.154754, 0.0]
+ABOVE_Q = [0.0, 1.243947, -1.24856, 1.566184, 0.0]
+
+
+def _grasp_red(world):
+    """The red block on the table under the open hand at GRASP_Q, the fingers closed on it:
+    the gripper goal's outcome."""
     world.reset(0)
     world.set_block_pose("red", (0.2, 0.0, 0.015), 0.0)
-    q = [0.0, 1.177257, -1.593299, 1.154754, 0.0]  # tool top-down at (0.2, 0, 0.018)
-    world.set_arm_positions(q, 0.0)
+    world.set_arm_positions(GRASP_Q, 0.0)
     world.step(20)
     h = world.start_gripper(m.GRIPPER_CLOSED)
     while not h.outcome.done:
         world.step(6)
-    assert h.outcome.stalled and not h.outcome.reached_goal
-    assert abs(h.outcome.position - m.finger_angle_for_opening(0.04)) < 0.02
+    return h.outcome
+
+
+def test_gripper_holds_a_block_by_friction_only(world):
+    grasp = _grasp_red(world)
+    assert grasp.stalled and not grasp.reached_goal
+    assert abs(grasp.position - m.finger_angle_for_opening(0.04)) < 0.02
     # the only constraint in the world is the gear coupling the two fingers
     n = p.getNumConstraints(physicsClientId=world._cid)
     assert n == 1
     info = p.getConstraintInfo(p.getConstraintUniqueId(0, physicsClientId=world._cid),
                                physicsClientId=world._cid)
     assert info[0] == info[2] == world.arm and info[4] == p.JOINT_GEAR
-    up = [0.0, 1.243947, -1.24856, 1.566184, 0.0]  # 6 cm higher
-    h = world.start_trajectory(TrajectoryGoal(list(m.ARM_JOINTS), [1.2], [up]))
+    h = world.start_trajectory(TrajectoryGoal(list(m.ARM_JOINTS), [1.2], [ABOVE_Q]))
     while not h.outcome.done:
         world.step(6)
     z = world.block_pose("red")[0][2]
@@ -222,18 +232,9 @@ def test_a_block_slipping_out_stops_a_trajectory_that_watches_the_fingers(world,
     """A lift with the block taken out of the closed fingers (a slip): with a path tolerance on
     the fingers the arm stops where they closed past it, near where it started; without one it
     lifts the empty hand all the way."""
-    world.reset(0)
-    world.set_block_pose("red", (0.2, 0.0, 0.015), 0.0)
-    q = [0.0, 1.177257, -1.593299, 1.154754, 0.0]  # tool top-down at (0.2, 0, 0.018)
-    world.set_arm_positions(q, 0.0)
-    world.step(20)
-    h = world.start_gripper(m.GRIPPER_CLOSED)
-    while not h.outcome.done:
-        world.step(6)
-    held = h.outcome.position
-    up = [0.0, 1.243947, -1.24856, 1.566184, 0.0]  # 6 cm higher
+    held = _grasp_red(world).position
     tolerance = {} if watch is None else dict.fromkeys(m.FINGER_JOINTS, watch)
-    h = world.start_trajectory(TrajectoryGoal(list(m.ARM_JOINTS), [1.2], [up],
+    h = world.start_trajectory(TrajectoryGoal(list(m.ARM_JOINTS), [1.2], [ABOVE_Q],
                                               path_tolerance=tolerance))
     steps = 0
     while not h.outcome.done:
@@ -244,14 +245,14 @@ def test_a_block_slipping_out_stops_a_trajectory_that_watches_the_fingers(world,
     fingers = np.mean([world.joint_positions()[n] for n in m.FINGER_JOINTS])
     arm = np.array([world.joint_positions()[n] for n in m.ARM_JOINTS])
     if watch is None:
-        assert h.outcome.status == ac.SUCCEEDED and np.abs(arm - up).max() < 0.02
+        assert h.outcome.status == ac.SUCCEEDED and np.abs(arm - ABOVE_Q).max() < 0.02
         assert fingers < held - 0.1  # closed on nothing, unseen
         return
     assert ac.fingers_moved(h.outcome.error_code, h.outcome.message), h.outcome
     world.step(60)  # stopped: the arm holds where the fingers moved, short of the lift
     after = np.array([world.joint_positions()[n] for n in m.ARM_JOINTS])
     assert np.abs(after - arm).max() < 0.02
-    assert np.abs(after - q).max() < 0.5 * np.abs(np.subtract(up, q)).max()
+    assert np.abs(after - GRASP_Q).max() < 0.5 * np.abs(np.subtract(ABOVE_Q, GRASP_Q)).max()
 
 
 @pytest.mark.parametrize(

@@ -189,7 +189,6 @@ def _phases(seg: Segment) -> str:
     return "/".join((seg.phase, *seg.also))
 
 
-
 def planning_start(measured: Sequence[float], commanded: Sequence[float] | None) -> list[float]:
     """Where the next plan starts: the pose the arm was last sent to, while it holds there.
 

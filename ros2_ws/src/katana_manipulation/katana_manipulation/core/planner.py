@@ -497,9 +497,8 @@ class PickPlacePlanner:
     def _merged(self, segs: list[Segment]) -> list[Segment]:
         """Run consecutive arm moves as one trajectory: one goal instead of several, and no stop
         between them (approach into descend; lift, carry and lower; retreat into park), on the
-        same waypoints. Each
-        trajectory is timed here, once: timing the moves before merging them was most of the
-        planning time of a pick-and-place, spent on timings nobody ran."""
+        same waypoints. Each trajectory is timed here, once: timing the moves before merging
+        them was most of the planning time of a pick-and-place, spent on timings nobody ran."""
         out: list[Segment] = []
         for seg in segs:
             prev = out[-1] if out else None
