@@ -23,7 +23,7 @@ API (stable; plain Python in, plain Python out):
   rows empty = the arm stops at every point). Tolerances are ``{name: rad}`` or a sequence of
   ``(name, rad)`` pairs (pairs let duplicates be detected): 0 = the contract's default,
   negative = no tolerance (control_msgs' meaning). A path tolerance may also name a finger joint
-  (``models.FINGER_JOINTS``): an arm trajectory holds the gripper where it is, so the fingers
+  (``models.FINGER_JOINTS``): no gripper goal runs during an arm trajectory, and the fingers
   may move at most that far from where they were when the motion started (how a pick-and-place
   watches a held block slip out while it carries it; the smallest finger tolerance given
   counts, judged on the fingers' mean angle).
