@@ -1,5 +1,6 @@
 """A ROS graph inside this process: an own rclpy Context (optionally in another ROS domain),
-nodes spun by a MultiThreadedExecutor in a background thread, and bounded waits on conditions
+nodes spun by a MultiThreadedExecutor in a background thread (those on simulated time sharing
+one /clock subscription, katana_common.shared_clock), and bounded waits on conditions
 (never a bare sleep). katana-robot runs its truth measurement and skill trials in one, and
 watches a run of another process through one; the whole-graph tests and benches use it too."""
 
@@ -10,6 +11,7 @@ from typing import Any
 
 import rclpy
 from katana_common.executor import BackgroundSpin, MultiThreadedExecutor
+from katana_common.shared_clock import SharedClock
 from katana_common.testing import wait_until
 from rclpy.context import Context
 from rclpy.node import Node
@@ -25,11 +27,13 @@ class InProcessGraph:
         self.close_timeout_s = close_timeout_s
         self.executor = MultiThreadedExecutor(num_threads=threads, context=self.context)
         self.nodes: list[Node] = []
+        self._clock = SharedClock()
         self._spin = BackgroundSpin(self.executor)
 
     def add(self, *nodes: Node) -> None:
         for node in nodes:
             self.nodes.append(node)
+            self._clock.join(node)
             self.executor.add_node(node)
 
     def node(self, name: str) -> Node:

@@ -18,12 +18,12 @@ goal ended in about one goal of three, and a pick-and-place took 0.6-0.9 s where
    worker clears the mark just before it runs the task.
 
 The wait loop hands out what rclpy's does, in the same order (test_executor.py holds it to
-rclpy's own on the same pending work), at less cost per round. In the loop bench's graph
-(about 170 rounds and 300 callbacks per experiment) rclpy's loop cost the spinning thread
-about 1 ms per round. The QoS event handlers that report an incompatible QoS or type (two per
-publisher and subscription: 78 of the graph's ~220 entities) join the wait set every
-INCOMPATIBILITY_POLL_S instead of every round: they report a misconfigured peer, which a
-quarter of a second does not change, and the wait is cut short for the next poll.
+rclpy's own on the same pending work), at less cost per round. In the loop bench's graph (about
+130 rounds and 140 callbacks per experiment) rclpy's loop cost the spinning thread about 1 ms
+per round, this one about 0.4 ms. The QoS event handlers that report an incompatible QoS or type
+(two per publisher and subscription: 78 of the graph's ~220 entities) join the wait set every
+INCOMPATIBILITY_POLL_S instead of every round: they report a misconfigured peer, which a quarter
+of a second does not change, and the wait is cut short for the next poll.
 
 A future's done-callbacks are executor tasks in rclpy (the executor that completed the future
 queues them): a thread waiting for an answer is woken only after one more round of the wait
@@ -50,6 +50,7 @@ from typing import Any
 
 from rclpy.action.client import ActionClient
 from rclpy.action.server import ActionServer
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.client import Client
 from rclpy.event_handler import EventHandler, QoSPublisherEventType, QoSSubscriptionEventType
 from rclpy.exceptions import InvalidHandle
@@ -142,9 +143,8 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
         self._executor = _QueuedCountsAsExecuting(self._executor)
         # event handler -> its subscription (None: a publisher's); only the spinning thread uses it
         self._subscription_of: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-        # waitable -> (its entity counts in a wait set, reports_incompatibility), fixed for its
-        # life; only the spinning thread uses it
-        self._waitable_info: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+        # node -> its _Entities; only the spinning thread uses it
+        self._entities_of: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
         self._next_incompatibility_poll_ns = 0
 
     def create_task(self, callback: Callable, *args: Any, **kwargs: Any) -> Task | Future:
@@ -156,6 +156,36 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
             done.set_result(None)
             return done
         return super().create_task(callback, *args, **kwargs)
+
+    def _make_handler(self, entity: Any, node: Any, take_from_wait_list: Callable) -> Task:
+        """rclpy's handler (`Executor._make_handler`, rclpy 7.1.5), its wake of the spinning
+        thread after the take guarded as its last one is: `shutdown()` destroys the guard
+        condition without waiting for running callbacks, and a callback started just before
+        raised InvalidHandle there (printed at exit as "The following exception was never
+        retrieved"), leaving its callback group marked busy."""
+        entity._executor_event = True  # out of the wait set until taken
+
+        async def handler(entity, gc, is_shutdown, work_tracker):
+            if is_shutdown or not entity.callback_group.beginning_execution(entity):
+                entity._executor_event = False  # not run (busy group, or stopping)
+                _wake(gc)
+                return
+            with work_tracker:
+                call_coroutine = take_from_wait_list(entity)
+                entity._executor_event = False  # may join the wait set again
+                _wake(gc)
+                try:
+                    if call_coroutine is not None:
+                        await call_coroutine()
+                finally:
+                    entity.callback_group.ending_execution(entity)
+                    _wake(gc)  # the next callback of its group may run
+
+        task = Task(handler, (entity, self._guard, self._is_shutdown, self._work_tracker),
+                    executor=self)
+        with self._tasks_lock:
+            self._tasks.append((task, entity, node))
+        return task
 
     def can_execute(self, entity: Any) -> bool:
         if not super().can_execute(entity):
@@ -183,13 +213,14 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
         round. In a graph of a few hundred entities rclpy spends about 1 ms per round in
         Python, most of it in a membership test of every waitable against the list of all of
         them (quadratic), an ExitStack entry per entity and a new rcl timer per call for the
-        timeout. Here: sets for the ready entities, handles entered and left directly, each
-        waitable's entity counts kept, and the timeout as a deadline passed to the wait."""
+        timeout. Here: each node's entities with their handles, pointers and counts kept until
+        its lists change (`_Entities`), a callback group asked once per round, sets for the
+        ready entities, handles entered and left directly, and the timeout as a deadline
+        passed to the wait."""
         if isinstance(timeout_sec, TimeoutObject):
             timeout_sec = timeout_sec.timeout
         timeout_ns = timeout_sec_to_nsec(timeout_sec)  # < 0: wait for ever; 0: do not wait
         deadline_ns = time.monotonic_ns() + timeout_ns if timeout_ns > 0 else None
-        can_execute = self.can_execute
         yielded_work = False
         while not yielded_work and not self._is_shutdown and not condition():
             nodes_to_use = self.get_nodes() if nodes is None else nodes
@@ -211,50 +242,53 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
             poll_incompatibility = now_ns >= self._next_incompatibility_poll_ns
             if poll_incompatibility:
                 self._next_incompatibility_poll_ns = now_ns + int(INCOMPATIBILITY_POLL_S * 1e9)
-            subscriptions, timers, clients, services, guards, waitables = [], [], [], [], [], []
-            for node in nodes_to_use:
-                subscriptions += [e for e in node.subscriptions if can_execute(e)]
-                timers += [e for e in node.timers if can_execute(e)]
-                clients += [e for e in node.clients if can_execute(e)]
-                services += [e for e in node.services if can_execute(e)]
-                for gc in node.guards:
-                    if can_execute(gc):
+            allowed = _GroupVerdicts()
+            of_node = [self._entities(node) for node in nodes_to_use]
+            subscriptions, timers, clients, services, waitables = [], [], [], [], []
+            guards = []
+            for entities in of_node:
+                subscriptions += [e for e in entities.subscriptions if allowed(e[0])]
+                timers += [e for e in entities.timers if allowed(e[0])]
+                clients += [e for e in entities.clients if allowed(e[0])]
+                services += [e for e in entities.services if allowed(e[0])]
+                for entry in entities.guards:
+                    gc = entry[0]
+                    if allowed(gc):
                         if gc._executor_triggered:  # triggered but not handled: again
                             gc.trigger()
-                        guards.append(gc)
-                waitables += [e for e in node.waitables
-                              if (poll_incompatibility or not self._info(e)[1])
-                              and can_execute(e)]
-            guards += (self._guard, self._sigint_gc)
+                        guards.append(entry)
+                waitables += [e for e in entities.waitables
+                              if (poll_incompatibility or not e[3]) and self.can_execute(e[0])]
+            guards += [_entry(gc) for gc in (self._guard, self._sigint_gc)]
 
             entered: list = []  # handles in use while the wait set holds them
             try:
-                subscriptions = self._enter_handles(subscriptions, entered)
-                clients = self._enter_handles(clients, entered)
-                services = self._enter_handles(services, entered)
-                timers = self._enter_handles(timers, entered)
-                guards = self._enter_handles(guards, entered)
-                in_set = self._enter_handles(waitables, entered, own=True)  # in the wait set
+                subscriptions = _enter(subscriptions, entered)
+                clients = _enter(clients, entered)
+                services = _enter(services, entered)
+                timers = _enter(timers, entered)
+                guards = _enter(guards, entered)
+                waitables = _enter(waitables, entered)  # a waitable is its own handle
                 counts = [len(subscriptions), len(guards), len(timers), len(clients),
                           len(services), 0]
-                for waitable in in_set:
-                    counts = [a + b for a, b in zip(counts, self._info(waitable)[0], strict=True)]
+                for entry in waitables:
+                    counts = [a + b for a, b in zip(counts, entry[2], strict=True)]
                 self._context.handle.__enter__()
                 entered.append(self._context.handle)
                 wait_set = _rclpy.WaitSet(*counts, self._context.handle)
                 wait_set.clear_entities()
-                for entity in subscriptions:
-                    wait_set.add_subscription(entity.handle)
-                for entity in clients:
-                    wait_set.add_client(entity.handle)
-                for entity in services:
-                    wait_set.add_service(entity.handle)
-                for entity in timers:
-                    wait_set.add_timer(entity.handle)
-                for entity in guards:
-                    wait_set.add_guard_condition(entity.handle)
-                for waitable in in_set:
-                    waitable.add_to_wait_set(wait_set)
+                for entry in subscriptions:
+                    wait_set.add_subscription(entry[1])
+                for entry in clients:
+                    wait_set.add_client(entry[1])
+                for entry in services:
+                    wait_set.add_service(entry[1])
+                for entry in timers:
+                    wait_set.add_timer(entry[1])
+                for entry in guards:
+                    wait_set.add_guard_condition(entry[1])
+                for entry in waitables:
+                    entry[0].add_to_wait_set(wait_set)
 
                 wait_ns = timeout_ns
                 if deadline_ns is not None:
@@ -274,40 +308,44 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
                 timers_ready = set(wait_set.get_ready_entities("timer"))
                 clients_ready = set(wait_set.get_ready_entities("client"))
                 services_ready = set(wait_set.get_ready_entities("service"))
-                for gc in guards:  # guard conditions are taken by the wait
-                    if gc.handle.pointer in guards_ready:
-                        gc._executor_triggered = True
-                ready_waitables = {w for w in in_set if w.is_ready(wait_set)}
+                for entry in guards:  # guard conditions are taken by the wait
+                    if entry[2] in guards_ready:
+                        entry[0]._executor_triggered = True
+                ready_waitables = {e[0] for e in waitables if e[0].is_ready(wait_set)}
             finally:
                 for handle in reversed(entered):
                     handle.__exit__(None, None, None)
 
-            for node in nodes_to_use:
-                for waitable in node.waitables:
-                    if waitable in ready_waitables and waitable.callback_group.can_execute(
-                            waitable):
-                        yielded_work = True
-                        yield self._make_handler(waitable, node, self._take_waitable), \
-                            waitable, node
-            for node in nodes_to_use:
-                for tmr in node.timers:
-                    if (tmr.handle.pointer in timers_ready and tmr.handle.is_timer_ready()
-                            and tmr.callback_group.can_execute(tmr)):
-                        yielded_work = True
-                        yield self._make_handler(tmr, node, self._take_timer), tmr, node
+            if ready_waitables:
+                for node, entities in zip(nodes_to_use, of_node, strict=True):
+                    for entry in entities.waitables:
+                        waitable = entry[0]
+                        if (waitable in ready_waitables
+                                and waitable.callback_group.can_execute(waitable)):
+                            yielded_work = True
+                            yield self._make_handler(waitable, node, self._take_waitable), \
+                                waitable, node
+            for node, entities in zip(nodes_to_use, of_node, strict=True):
+                if timers_ready:
+                    for tmr, handle, pointer in entities.timers:
+                        if (pointer in timers_ready and handle.is_timer_ready()
+                                and tmr.callback_group.can_execute(tmr)):
+                            yielded_work = True
+                            yield self._make_handler(tmr, node, self._take_timer), tmr, node
                 if subs_ready:
                     yielded_work |= yield from self._hand_out(
-                        node, node.subscriptions, subs_ready, self._take_subscription)
-                for gc in node.guards:
+                        node, entities.subscriptions, subs_ready, self._take_subscription)
+                for entry in entities.guards:
+                    gc = entry[0]
                     if gc._executor_triggered and gc.callback_group.can_execute(gc):
                         yielded_work = True
                         yield self._make_handler(gc, node, self._take_guard_condition), gc, node
                 if clients_ready:
                     yielded_work |= yield from self._hand_out(
-                        node, node.clients, clients_ready, self._take_client)
+                        node, entities.clients, clients_ready, self._take_client)
                 if services_ready:
                     yielded_work |= yield from self._hand_out(
-                        node, node.services, services_ready, self._take_service)
+                        node, entities.services, services_ready, self._take_service)
 
             if timeout_ns == 0 or (deadline_ns is not None
                                    and time.monotonic_ns() >= deadline_ns):
@@ -317,41 +355,107 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
         if condition():
             raise ConditionReachedException()
 
-    def _info(self, waitable: Any) -> tuple[tuple[int, ...], bool]:
-        """A waitable's entity counts (as rclpy's WaitSet takes them) and whether it reports
-        an incompatible peer; both fixed for its life."""
-        info = self._waitable_info.get(waitable)
-        if info is None:
-            n = waitable.get_num_entities()
-            info = self._waitable_info[waitable] = (
-                (n.num_subscriptions, n.num_guard_conditions, n.num_timers, n.num_clients,
-                 n.num_services, n.num_events), reports_incompatibility(waitable))
-        return info
+    def _entities(self, node: Any) -> _Entities:
+        """`node`'s entities as the wait loop uses them: the same as last round while the
+        node's lists hold the same entities (the comparison of identities is C-speed)."""
+        lists = (tuple(node.subscriptions), tuple(node.timers), tuple(node.clients),
+                 tuple(node.services), tuple(node.guards), tuple(node.waitables))
+        entities = self._entities_of.get(node)
+        if entities is None or entities.lists != lists:
+            entities = self._entities_of[node] = _Entities(lists)
+        return entities
 
-    def _hand_out(self, node, entities, ready: set, take: Callable):
-        """Handlers for the `entities` whose handle the wait found ready, as rclpy makes them;
-        returns whether it made any."""
+    def _hand_out(self, node, entries: list, ready: set, take: Callable):
+        """Handlers for the entities (entries of `_Entities`) whose handle the wait found
+        ready, as rclpy makes them; returns whether it made any."""
         handed = False
-        for entity in entities:
-            if entity.handle.pointer in ready and entity.callback_group.can_execute(entity):
+        for entity, _handle, pointer in entries:
+            if pointer in ready and entity.callback_group.can_execute(entity):
                 handed = True
                 yield self._make_handler(entity, node, take), entity, node
         return handed
 
-    @staticmethod
-    def _enter_handles(entities: list, entered: list, own: bool = False) -> list:
-        """The entities whose handle (`own`: the entity itself, a waitable) could be marked in
-        use, each added to `entered`; a destroyed one is left out."""
-        kept = []
-        for entity in entities:
-            handle = entity if own else entity.handle
-            try:
-                handle.__enter__()
-            except InvalidHandle:
-                continue
-            entered.append(handle)
-            kept.append(entity)
-        return kept
+
+def _wake(guard: Any) -> None:
+    """Trigger the executor's guard condition, unless `shutdown()` has destroyed it."""
+    try:
+        guard.trigger()
+    except InvalidHandle:
+        pass
+
+
+def _entry(entity: Any) -> tuple | None:
+    """(entity, handle, handle's pointer) for a subscription, timer, client, service or guard
+    condition; None once it is destroyed."""
+    try:
+        handle = entity.handle
+        return entity, handle, handle.pointer
+    except InvalidHandle:
+        return None
+
+
+def _waitable_entry(waitable: Any) -> tuple:
+    """(waitable, itself, its entity counts as rclpy's WaitSet takes them, whether it reports
+    an incompatible peer); all fixed for its life."""
+    n = waitable.get_num_entities()
+    return (waitable, waitable, (n.num_subscriptions, n.num_guard_conditions, n.num_timers,
+                                 n.num_clients, n.num_services, n.num_events),
+            reports_incompatibility(waitable))
+
+
+class _Entities:
+    """One node's entities as the wait loop uses them, made when its lists change: entries of
+    (entity, handle, pointer) per kind, and of `_waitable_entry` for its waitables. An
+    entity destroyed while it was listed is left out (rclpy leaves it out of the wait set)."""
+
+    __slots__ = ("lists", "subscriptions", "timers", "clients", "services", "guards",
+                 "waitables")
+
+    def __init__(self, lists: tuple) -> None:
+        self.lists = lists
+        self.subscriptions, self.timers, self.clients, self.services, self.guards = (
+            [e for e in map(_entry, kind) if e is not None] for kind in lists[:5])
+        self.waitables = [_waitable_entry(w) for w in lists[5]]
+
+
+class _GroupVerdicts:
+    """`Executor.can_execute` over one round, asking each callback group once: rclpy's two
+    groups answer the same for all their entities (a mutually exclusive one: whether none of
+    them is running), so the answer is kept for the round; any other group is asked for each
+    entity."""
+
+    __slots__ = ("_verdicts",)
+    _SAME_FOR_ALL = (MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup)
+
+    def __init__(self) -> None:
+        self._verdicts: dict = {}
+
+    def __call__(self, entity: Any) -> bool:
+        if entity._executor_event:
+            return False
+        group = entity.callback_group
+        verdict = self._verdicts.get(group)
+        if verdict is None:
+            verdict = group.can_execute(entity)
+            if type(group) in self._SAME_FOR_ALL:
+                self._verdicts[group] = verdict
+        return verdict
+
+
+def _enter(entries: list, entered: list) -> list:
+    """The entries whose handle could be marked in use, each handle added to `entered`; a
+    destroyed one is left out."""
+    kept = []
+    for entry in entries:
+        if entry is None:
+            continue
+        try:
+            entry[1].__enter__()
+        except InvalidHandle:
+            continue
+        entered.append(entry[1])
+        kept.append(entry)
+    return kept
 
 
 class BackgroundSpin:

@@ -1,5 +1,6 @@
 """The one way nodes are run and stopped: `run_node` (one node, every node's main()) and
-`spin_nodes` (any set of nodes on one executor: katana-run, katana-demo).
+`spin_nodes` (any set of nodes on one executor, sharing one /clock subscription: katana-run,
+katana-demo).
 
 Exit codes, for every node and console tool of the project:
 0 a clean stop (including SIGINT / SIGTERM), 1 a failure while running,
@@ -31,6 +32,7 @@ from rclpy.utilities import remove_ros_args
 
 from .executor import MultiThreadedExecutor
 from .params import ParameterError
+from .shared_clock import SharedClock
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -103,6 +105,10 @@ def spin_nodes(
     (see the module docstring). Needs rclpy initialised with SignalHandlerOptions.NO."""
     stop = stop or _stop_on_signals()
     executor = executor or MultiThreadedExecutor(num_threads=8)
+    if len(nodes) > 1:  # one /clock subscription for the process (see shared_clock)
+        clock = SharedClock()
+        for node in nodes:
+            clock.join(node)
     for node in nodes:
         executor.add_node(node)
     failures: list[BaseException] = []

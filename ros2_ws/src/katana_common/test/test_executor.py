@@ -129,6 +129,29 @@ def test_a_queued_message_does_not_spin_the_waiting_thread(graph):
     assert graph.received == [7]  # and the message is delivered once a worker is free
 
 
+def test_a_message_for_a_busy_group_does_not_spin_the_waiting_thread(graph):
+    """A message for a subscription whose mutually exclusive group is running another
+    callback stays out of the wait set until that callback ends, on both executors (the fast
+    loop asks each group once per round)."""
+    started = threading.Event()
+
+    def hold(_message) -> None:
+        started.set()
+        graph.release.wait(10.0)
+
+    graph.node.create_subscription(Int32, "hold", hold, 10)  # the node's default group
+    graph.node.create_publisher(Int32, "hold", 10).publish(Int32(data=1))
+    assert started.wait(5.0)
+    rounds = graph.rounds_during(lambda: graph.publisher.publish(Int32(data=7)))
+    assert rounds <= WINDOW_S / SPIN_SLICE_S + 8
+    assert graph.received == []  # waits for the group
+    graph.release.set()
+    deadline = time.monotonic() + 5.0
+    while not graph.received and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert graph.received == [7]
+
+
 def test_a_queued_task_is_handed_out_once(graph):
     graph.occupy_every_worker()
     ran = threading.Event()
@@ -172,6 +195,40 @@ def test_a_thread_waiting_for_an_answer_is_woken_by_the_thread_that_answers(grap
     assert woke.wait(5.0) and other_ran.wait(5.0)
 
 
+@pytest.mark.parametrize("ours", [True, False], ids=["katana_common", "rclpy"])
+def test_a_callback_started_as_the_executor_shuts_down_ends_cleanly(ours):
+    """`shutdown()` destroys the executor's guard condition without waiting for running
+    callbacks. rclpy's handler then raises InvalidHandle at its wake after the take and leaves
+    the callback group busy; ours ends the callback and frees the group."""
+    context = Context()
+    rclpy.init(context=context)
+    executor = MultiThreadedExecutor(num_threads=WORKERS, context=context)
+    node = rclpy.create_node("executor_shutdown_probe", context=context)
+    received: list[int] = []
+    subscription = node.create_subscription(Int32, "numbers", lambda m: received.append(m.data),
+                                            10)
+    publisher = node.create_publisher(Int32, "numbers", 10)
+    executor.add_node(node)
+    try:
+        publisher.publish(Int32(data=3))
+        make = MultiThreadedExecutor._make_handler if ours else Executor._make_handler
+        task = make(executor, subscription, node, executor._take_subscription)
+        executor.shutdown(timeout_sec=1.0)  # as a worker is about to run the handler
+        task()
+        assert task.done()
+        group = subscription.callback_group
+        if ours:
+            assert task.exception() is None
+            assert group.can_execute(subscription)
+        else:
+            assert "destruction was requested" in str(task.exception())
+            assert not group.can_execute(subscription)
+            group.ending_execution(subscription)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
 class Twin:
     """A node with every kind of entity an executor waits on: subscriptions (two in one
     mutually exclusive group), timers (one always due, one never), a guard condition, a
@@ -183,11 +240,12 @@ class Twin:
         rclpy.init(context=self.context)
         self.executor = MultiThreadedExecutor(num_threads=WORKERS, context=self.context)
         self.node = rclpy.create_node("executor_twin", context=self.context)
-        group = MutuallyExclusiveCallbackGroup()
+        self.group = MutuallyExclusiveCallbackGroup()
         self.topics = ("a", "b", "c")
-        for i, topic in enumerate(self.topics):
+        self.subscriptions = [
             self.node.create_subscription(Int32, topic, lambda _m: None, 10,
-                                          callback_group=group if i < 2 else None)
+                                          callback_group=self.group if i < 2 else None)
+            for i, topic in enumerate(self.topics)]
         self.publishers = {t: self.node.create_publisher(Int32, t, 10) for t in self.topics}
         self.node.create_timer(0.001, lambda: None)
         self.node.create_timer(3600.0, lambda: None)
@@ -196,6 +254,7 @@ class Twin:
         self.client = self.node.create_client(Trigger, "twin_trigger")
         self.executor.add_node(self.node)
         self.peer = None
+        self.added: list = []  # subscriptions made after the loop first saw the node
 
     def handed_out(self, wait_loop) -> list:
         """Every entity `wait_loop` hands out without waiting, then the executor as before."""
@@ -230,10 +289,21 @@ def twin():
 @settings(max_examples=8, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(published=st.sets(st.sampled_from(("a", "b", "c"))), request=st.booleans(),
-       guard=st.booleans(), incompatible_peer=st.booleans(), ours_first=st.booleans())
+       guard=st.booleans(), incompatible_peer=st.booleans(), group_busy=st.booleans(),
+       added=st.booleans(), ours_first=st.booleans())
 def test_the_wait_loop_hands_out_what_rclpys_does(twin, published, request, guard,
-                                                  incompatible_peer, ours_first):
-    """The fast loop against its reference twin, rclpy's own, on the same pending work."""
+                                                  incompatible_peer, group_busy, added,
+                                                  ours_first):
+    """The fast loop against its reference twin, rclpy's own, on the same pending work: with
+    a mutually exclusive group running a callback (its other entities wait), and with a
+    subscription added after the fast loop has seen the node (its entities are kept until
+    the node's lists change)."""
+    if added:
+        twin.executor._next_incompatibility_poll_ns = 0
+        twin.handed_out(MultiThreadedExecutor._wait_for_ready_callbacks)  # the node seen
+        topic = f"added_{len(twin.added)}"
+        twin.added.append(twin.node.create_subscription(Int32, topic, lambda _m: None, 10))
+        twin.node.create_publisher(Int32, topic, 10).publish(Int32(data=1))
     for topic in sorted(published):
         twin.publishers[topic].publish(Int32(data=1))
     if request:
@@ -248,9 +318,22 @@ def test_the_wait_loop_hands_out_what_rclpys_does(twin, published, request, guar
     loops = [MultiThreadedExecutor._wait_for_ready_callbacks, Executor._wait_for_ready_callbacks]
     if not ours_first:
         loops.reverse()
-    first, second = (twin.handed_out(loop) for loop in loops)
+    if group_busy:
+        assert twin.group.beginning_execution(twin.subscriptions[0])
+    try:
+        first, second = (twin.handed_out(loop) for loop in loops)
+    finally:
+        if group_busy:
+            twin.group.ending_execution(twin.subscriptions[0])
     assert first == second
     assert first, "the timer that is always due is handed out"
+    grouped = set(twin.subscriptions[:2])
+    if group_busy:
+        assert not grouped & set(first)
+    elif published & {"a", "b"}:
+        assert grouped & set(first)
+    if added:
+        assert twin.added[-1] in first
     if twin.peer is not None:
         assert any(reports_incompatibility(e) for e in first)
 

@@ -20,7 +20,8 @@ from katana_sim.core import pacing
 from katana_sim.sim_params import RATE_PARAMS
 
 #: faster than real time, at most one per this many wall seconds: more would only load the
-#: subscribers (every node with use_sim_time takes /clock); a motion's end publishes both anyway.
+#: subscribers (every node with use_sim_time takes /clock: one callback per process where the
+#: nodes share one, katana_common.shared_clock); a motion's end publishes both anyway.
 #: Paced (rtf > 1) the clock stays smooth for timers on simulated time; in the fast sim (rtf 0)
 #: nothing runs on simulated time but stamps, while every message costs the one-process graph a
 #: wake of its executor and a GIL hand-off that stalls the thread stepping the physics (10 Hz
