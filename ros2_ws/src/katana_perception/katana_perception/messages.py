@@ -64,7 +64,9 @@ def rgb_to_image(rgb: np.ndarray, header: Header) -> Image:
 def calibration_from_camera_info(
     msg: CameraInfo, position: Sequence[float], rpy: Sequence[float], extrinsics_file: str = "",
 ) -> Calibration:
-    """Intrinsics from CameraInfo, pose from the extrinsics file if given, else parameters."""
+    """Intrinsics from CameraInfo, pose from the extrinsics file if given, else parameters;
+    ValueError when a field is malformed or the whole is no camera over the table
+    (`Calibration.implausibility`)."""
     k = list(msg.k)
     if len(k) != 9 or not all(math.isfinite(v) for v in k) or k[0] <= 0 or k[4] <= 0:
         raise ValueError(f"CameraInfo k is not a pinhole camera matrix: {k}")
@@ -84,8 +86,14 @@ def calibration_from_camera_info(
     D = np.asarray(d, dtype=float) if d else np.zeros(5)
     if extrinsics_file:
         pos, quat = load_extrinsics_yaml(extrinsics_file)
-        return Calibration.from_camera_pose(K, pos, quat, msg.width, msg.height, D)
-    return Calibration.from_camera_rpy(K, position, rpy, msg.width, msg.height, D)
+        calibration = Calibration.from_camera_pose(K, pos, quat, msg.width, msg.height, D)
+    else:
+        calibration = Calibration.from_camera_rpy(K, position, rpy, msg.width, msg.height, D)
+    problem = calibration.implausibility()
+    if problem:
+        raise ValueError(f"CameraInfo with this camera pose is not a camera over the table: "
+                         f"{problem}")
+    return calibration
 
 
 

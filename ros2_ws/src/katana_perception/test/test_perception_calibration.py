@@ -94,6 +94,56 @@ def test_bad_inputs_are_rejected():
                          np.zeros(5), 640, 480)
 
 
+def overhead(K: np.ndarray, D) -> Calibration:
+    return Calibration.from_camera_rpy(K, (0.22, 0, 0.75), (math.pi, 0, -math.pi / 2), D=D)
+
+
+@pytest.mark.parametrize("f, D", [
+    (750.0, [0.0] * 5), (750.0, [-0.08, 0.02, 0.001, -0.001, 0]), (750.0, [0.2, -0.2, 0, 0, 0]),
+    (300.0, [-0.35, 0.12, 0, 0, -0.02]), (200.0, [-0.3, 0.1, 0, 0, 0])])
+def test_real_lenses_are_plausible(f, D):
+    """The overhead camera, and lenses from narrow to 116 degrees with real distortion."""
+    assert overhead(default_camera_matrix(f=f), D).implausibility() == ""
+
+
+@pytest.mark.parametrize("K, D, why", [
+    ([[1e12, 0, 319.5], [0, 1e12, 239.5], [0, 0, 1]], None, "field of view is 3.67e-08"),
+    ([[0.5, 0, 319.5], [0, 750, 239.5], [0, 0, 1]], None, "horizontal field of view is 180"),
+    ([[750, 0, 1e12], [0, 750, 239.5], [0, 0, 1]], None, "principal point"),
+    ([[750, 0, 319.5], [0, 750, -3], [0, 0, 1]], None, "principal point"),
+    (default_camera_matrix(), [1e12, 0, 0, 0, 0], "cannot be inverted"),
+    (default_camera_matrix(), [10.0, 0, 0, 0, 0], "cannot be inverted"),
+    (default_camera_matrix(f=200.0), [-0.35, 0.12, 0, 0, -0.02], "cannot be inverted"),
+])
+def test_implausible_cameras_say_why(K, D, why):
+    assert why in overhead(np.asarray(K, float), D).implausibility()
+
+
+def test_a_camera_that_does_not_see_the_table_is_implausible():
+    up = Calibration.from_camera_rpy(default_camera_matrix(), (0.22, 0, 0.75), (0, 0, 0))
+    assert "sees the table" in up.implausibility()
+
+
+@settings(max_examples=80, deadline=None)
+@given(f=st.floats(1.0, 1e6), cx=st.floats(-100.0, 800.0), k1=st.floats(-50.0, 50.0),
+       k3=st.sampled_from([0.0, -0.02, 1.0, -5.0]), x=st.floats(0.14, 0.30),
+       y=st.floats(-0.12, 0.12))
+def test_a_plausible_camera_projects_the_table_it_sees_to_drawable_pixels(f, cx, k1, k3, x, y):
+    """Whatever the intrinsics, a calibration that passes projects a table point under the
+    image's middle to a finite pixel that maps back to it (the fovea can draw it)."""
+    K = np.array([[f, 0.0, cx], [0.0, f, 239.5], [0.0, 0.0, 1.0]])
+    c = overhead(K, [k1, 0.0, 0.0, 0.0, k3])
+    if c.implausibility():
+        return
+    u, v = c.pixel_to_world(np.array([0.25, 0.75]) * 639, np.array([0.25, 0.75]) * 479, 0.0)
+    if not (min(u) <= x <= max(u) and min(v) <= y <= max(v)):
+        return  # not under the image's middle
+    pu, pv = c.world_to_pixel(x, y, 0.0)
+    assert np.isfinite([pu, pv]).all() and max(abs(pu), abs(pv)) < 2**26
+    bx, by = c.pixel_to_world(pu, pv, 0.0)
+    assert math.hypot(float(bx) - x, float(by) - y) < 0.01
+
+
 def mapping_error(est: Calibration, truth: Calibration) -> float:
     """Worst table-plane error over the play area at every block height, m."""
     gx, gy = np.meshgrid(np.linspace(0.14, 0.3, 9), np.linspace(-0.16, 0.16, 9))

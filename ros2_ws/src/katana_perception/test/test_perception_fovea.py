@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from katana_perception.core.calibration import Calibration
+from katana_perception.core.calibration import Calibration, default_camera_matrix
 from katana_perception.core.colors import NOMINAL_RGB
 from katana_perception.core.fovea import (
     N_ACTIONS,
     FoveaParams,
     FoveaScene,
+    FoveaSceneReference,
     NotFound,
     action_of,
     feature_vector,
@@ -309,3 +310,27 @@ def test_on_a_single_block_the_fovea_never_realises_action_5(x, y, yaw):
         fovea.find(1, 5)
     for action in (1, 2, 3, 4, 6):  # the search does reach every other action
         assert fovea.find(1, action).action == action
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # no pixel cast out of range
+@pytest.mark.parametrize("D", [None, [0.2, -0.2, 0.0, 0.0, 0.1]], ids=["pinhole", "distorted"])
+def test_faces_far_outside_the_view_are_drawn_as_they_fall_on_the_image(D):
+    """A face projected beyond what a mask can be drawn at is clipped first (a huge block over
+    the table covers the whole image, as without clipping); one projected to no finite or
+    plausible pixel covers none; the blocks in view are unchanged."""
+    calib = CALIB if D is None else Calibration.from_camera_rpy(
+        default_camera_matrix(), (0.22, 0, 0.75), (math.pi, 0, -math.pi / 2), D=D)
+    near = Block("near", "blue", 0.25, -0.05, 0.1, size=(0.04, 0.04, 0.03))
+    alone = FoveaScene(blocks=[near], calibration=calib).stacks[0].union
+
+    def union_sizes(far: Block) -> list[list[int]]:
+        return [[len(s.union) for s in scene(blocks=[far, near], calibration=calib).stacks]
+                for scene in (FoveaScene, FoveaSceneReference)]
+
+    for far in (Block("far", "red", 1e12, 0.05, 0.3), Block("far", "red", 9.0, 0.05, 0.3)):
+        assert union_sizes(far) == [[0, len(alone)]] * 2
+    huge = Block("far", "red", 0.2, 0.05, 0.3, size=(1e9, 1e9, 0.03))
+    sizes = union_sizes(huge)
+    assert sizes[0] == sizes[1]
+    if D is None:  # the pinhole's rays all fall on the huge block's top
+        assert sizes[0] == [H * W, len(alone)]

@@ -8,6 +8,7 @@ from an extrinsics YAML written by `katana-calibrate` (cv2.solvePnP on known poi
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,6 +27,14 @@ DEFAULT_CAMERA_ORIENTATION = (0.7071067811865476, -0.7071067811865476, 0.0, 0.0)
 DEFAULT_WIDTH = 640
 DEFAULT_HEIGHT = 480
 DEFAULT_FX = 750.0
+#: a camera's field of view along each image axis lies within these degrees
+FIELD_OF_VIEW_DEG = (1.0, 170.0)
+#: pixels of the image's middle half (each axis) mapped to the table and projected back land
+#: this close to themselves. Distortion that cannot be inverted there misses by thousands of
+#: pixels, or not at all; a strong real lens (93 degrees, k1 = -0.35) stays within a pixel
+#: there, though its corners miss by up to 140 px (OpenCV's iterative undistortion).
+ROUND_TRIP_PX = 2.0
+ROUND_TRIP_GRID = 5  # pixels per image axis checked
 
 
 def default_camera_matrix(
@@ -96,6 +105,41 @@ class Calibration:
         return cls.from_camera_pose(
             default_camera_matrix(), DEFAULT_CAMERA_POSITION, DEFAULT_CAMERA_ORIENTATION
         )
+
+    def implausibility(self) -> str:
+        """Why this cannot be a camera over the table, or "": its principal point outside the
+        image, a field of view outside FIELD_OF_VIEW_DEG, no pixel of the image's middle seeing the
+        table, or pixels there that do not map to the table and back to themselves within
+        ROUND_TRIP_PX. A
+        calibration that fails this projects blocks to pixels that are garbage (non-finite, or
+        beyond what a mask can be drawn at), though each number in it is finite."""
+        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
+        if not (0.0 <= cx <= self.width and 0.0 <= cy <= self.height):
+            return (f"the principal point ({cx:.6g}, {cy:.6g}) px is outside the "
+                    f"{self.width}x{self.height} image")
+        lo, hi = FIELD_OF_VIEW_DEG
+        for axis, f, size in (("horizontal", fx, self.width), ("vertical", fy, self.height)):
+            fov = math.degrees(2.0 * math.atan(size / (2.0 * f)))
+            if not lo <= fov <= hi:
+                return (f"the {axis} field of view is {fov:.3g} degrees ({size} px at a focal "
+                        f"length of {f:.6g} px); a camera's is {lo:g} to {hi:g}")
+        u, v = np.meshgrid(np.linspace(0.25, 0.75, ROUND_TRIP_GRID) * (self.width - 1.0),
+                           np.linspace(0.25, 0.75, ROUND_TRIP_GRID) * (self.height - 1.0))
+        u, v = u.ravel(), v.ravel()
+        with np.errstate(all="ignore"):
+            x, y = self.pixel_to_world(u, v, 0.0)
+            seen = np.isfinite(x) & np.isfinite(y)
+            if not seen.any():
+                return ("no pixel of the image's middle sees the table (z = 0) from this "
+                        "camera pose")
+            pu, pv = self.world_to_pixel(x[seen], y[seen], 0.0)
+            miss = np.hypot(pu - u[seen], pv - v[seen])
+        worst = int(np.argmax(np.where(np.isfinite(miss), miss, np.inf)))
+        if not np.isfinite(miss[worst]) or miss[worst] > ROUND_TRIP_PX:
+            return (f"pixel ({u[seen][worst]:.0f}, {v[seen][worst]:.0f}) maps to the table and "
+                    f"back to ({pu[worst]:.6g}, {pv[worst]:.6g}): the distortion "
+                    f"{self.D.tolist()} cannot be inverted over the image")
+        return ""
 
     # ---------------------------------------------------------------- pose
     @property

@@ -37,6 +37,15 @@ N_POINTS = 5
 N_ACTIONS = N_POINTS + 1
 ALL_ACTIONS = frozenset(range(1, N_ACTIONS + 1))
 _SHIFT = 4
+#: a face is drawn within this many pixels of the image origin (in fillPoly's fixed point that
+#: fits int32 with room); one reaching beyond is clipped to that square first, which leaves its
+#: pixels in the image as they were
+_DRAW_LIMIT_PX = float(1 << 20)
+_DRAW_BOX = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], np.float32) * _DRAW_LIMIT_PX
+_NOWHERE = np.full((1, 1, 2), -(1 << _SHIFT), np.int32)  # a face that covers no pixel
+#: a vertex projected this far (or to no finite point) is not a place on the image: the lens's
+#: distortion polynomial far outside the image, or a block nowhere near the camera
+_NO_FACE_PX = 1e30
 _NO_BITS = (False,) * N_POINTS
 _BITS = tuple(tuple(bool(code >> i & 1) for i in range(N_POINTS)) for code in range(1 << N_POINTS))
 _ACTION_OF = {bits: sum(bits) + 1 for bits in _BITS}
@@ -259,9 +268,18 @@ class FoveaScene:
         self._near_hi = np.array([st.hi + reach for st in self.stacks]).reshape(-1, 2)
 
     def _face_poly(self, b: Block, level: int) -> np.ndarray:
-        """Block b's top face at `level` in the image, in fillPoly's fixed point (1/16 px)."""
+        """Block b's top face at `level` in the image, in fillPoly's fixed point (1/16 px); a
+        face with a vertex projected to no finite point, or beyond _NO_FACE_PX, covers no
+        pixel."""
         poly = self.calibration.square_polygon(b.x, b.y, b.yaw, top_height(level, b.size),
                                                b.size[0], b.size[1])
+        if not np.all(np.abs(poly) < _NO_FACE_PX):  # no pixel of the image is any of its
+            return _NOWHERE
+        if np.abs(poly).max() > _DRAW_LIMIT_PX:  # a block far outside the camera's view
+            _, clipped = cv2.intersectConvexConvex(poly.astype(np.float32), _DRAW_BOX)
+            if clipped is None or len(clipped) < 3:
+                return _NOWHERE
+            poly = clipped.reshape(-1, 2).astype(np.float64)
         return np.rint(poly * (1 << _SHIFT)).astype(np.int32).reshape(1, -1, 2)
 
     def _build(self, chain: list[Block]) -> _Stack:
