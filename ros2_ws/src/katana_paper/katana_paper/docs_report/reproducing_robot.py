@@ -95,7 +95,13 @@ def robot_runs_table(data: Json) -> str:
 def _robot_settings(data: Json) -> str:
     return (made_by(robot_paper_command(data), data)
             + f" Each run is {get(data, 'experiments')} experiments; seeds "
-            f"{', '.join(str(s) for s in get(data, 'seeds', default=[]))}.")
+            f"{', '.join(str(s) for s in get(data, 'seeds', default=[]))}."
+            + RERUN_CAVEAT)
+
+
+#: the fast sim's runs are not reproducible to the digit on a loaded machine (DESIGN.md)
+RERUN_CAVEAT = (" A rerun need not repeat these figures to the digit: on a loaded machine two "
+                "runs of one seed can part (docs/DESIGN.md, after the fast sim's /clock).")
 
 
 #: section 3.3's runs: their settings, the table and the verdicts on the paper's claims (from
