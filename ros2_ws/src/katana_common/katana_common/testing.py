@@ -30,15 +30,25 @@ def spin_until(executor: Executor, condition: Callable[[], T], timeout_s: float 
     return _until(condition, timeout_s, lambda s: executor.spin_once(timeout_sec=s), slice_s)
 
 
-def call_service(executor: Executor, client, request, timeout_s: float = 10.0):
+class AnswerLost(TimeoutError):
+    """The service took the request but no answer came: rmw_fastrtps drops a response while it
+    has not matched the client's response reader ("failed to send response (timeout)" in the
+    server's log), likely on a loaded machine right after the client appeared."""
+
+
+def call_service(executor: Executor, client, request, timeout_s: float = 10.0,
+                 answer_timeout_s: float | None = None):
     """Call `client`'s service with `request` and return the response, spinning `executor`
-    while waiting (at most `timeout_s` for the service, and as long again for the answer);
-    TimeoutError says which wait ran out."""
+    while waiting (at most `timeout_s` for the service, and `answer_timeout_s`, by default as
+    long, for the answer). TimeoutError when the service did not appear; AnswerLost (a
+    TimeoutError, the request forgotten) when the answer did not come."""
     if not spin_until(executor, client.service_is_ready, timeout_s):
         raise TimeoutError(f"service {client.srv_name} not available within {timeout_s} s")
     future = client.call_async(request)
-    if not spin_until(executor, future.done, timeout_s):
-        raise TimeoutError(f"no answer from {client.srv_name} within {timeout_s} s")
+    wait_s = timeout_s if answer_timeout_s is None else answer_timeout_s
+    if not spin_until(executor, future.done, wait_s):
+        client.remove_pending_request(future)
+        raise AnswerLost(f"no answer from {client.srv_name} within {wait_s} s")
     return future.result()
 
 

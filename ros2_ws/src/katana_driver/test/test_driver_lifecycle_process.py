@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from katana_common.testing import probe_node, spin_until, use_private_domain
+from katana_common.testing import AnswerLost, call_service, probe_node, use_private_domain
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 
@@ -32,11 +32,7 @@ TARGET = {T.TRANSITION_CONFIGURE: "inactive", T.TRANSITION_ACTIVATE: "active",
           T.TRANSITION_DEACTIVATE: "inactive", T.TRANSITION_CLEANUP: "unconfigured",
           T.TRANSITION_ACTIVE_SHUTDOWN: "finalized"}
 SERVICE_S = 30.0  # for the driver's services to appear
-#: an answer not here by then was lost: rmw_fastrtps drops a response while it has not yet
-#: matched the client's response reader ("failed to send response (timeout): client will not
-#: receive response" in the server's log), which a loaded machine makes likely right after
-#: the client appears
-ANSWER_S = 10.0
+ANSWER_S = 10.0  # an answer not here by then was lost (katana_common.testing.AnswerLost)
 
 
 class Lifecycle:
@@ -49,26 +45,22 @@ class Lifecycle:
         self.change = node.create_client(ChangeState, "/katana_driver_node/change_state")
         self.get = node.create_client(GetState, "/katana_driver_node/get_state")
 
-    def _call(self, client, request):
-        if not spin_until(self.executor, client.service_is_ready, SERVICE_S):
-            raise TimeoutError(f"service {client.srv_name} not available within {SERVICE_S} s")
-        future = client.call_async(request)
-        if not spin_until(self.executor, future.done, ANSWER_S):
-            client.remove_pending_request(future)
-            return None
-        return future.result()
-
     def set(self, transition_id: int) -> bool:
-        answer = self._call(self.change, ChangeState.Request(
-            transition=Transition(id=transition_id)))
-        return answer.success if answer is not None else self.state() == TARGET[transition_id]
+        request = ChangeState.Request(transition=Transition(id=transition_id))
+        try:
+            return call_service(self.executor, self.change, request, SERVICE_S,
+                                ANSWER_S).success
+        except AnswerLost:
+            return self.state() == TARGET[transition_id]
 
-    def state(self) -> str:
-        for _ in range(3):
-            answer = self._call(self.get, GetState.Request())
-            if answer is not None:
-                return answer.current_state.label
-        raise TimeoutError(f"three answers from {self.get.srv_name} lost")
+    def state(self, tries: int = 3) -> str:
+        try:
+            return call_service(self.executor, self.get, GetState.Request(), SERVICE_S,
+                                ANSWER_S).current_state.label
+        except AnswerLost:
+            if tries <= 1:
+                raise
+            return self.state(tries - 1)
 
 
 def test_lifecycle_services_drive_the_driver_process(make_emulator, monkeypatch):
