@@ -24,6 +24,7 @@ from katana_curiosity.core.predictors import (
 from katana_curiosity.core.strategies import STRATEGIES, make_strategy
 
 from .metrics import cumulative_by_state, model_kl
+from .processes import worker_context
 
 DEFAULT_STRATEGIES = ("q1", "q10", "conf", "random")
 FAST_STRATEGY_NAMES = ("q1", "q10", "conf", "random")  # fastpath.FAST_STRATEGIES, without numba
@@ -262,8 +263,8 @@ def run_many(
         if any(c.strategy in FAST_STRATEGY_NAMES for c in configs):
             from katana_curiosity.core.fastpath import warm_up  # noqa: PLC0415 - numba: only for fast runs
 
-            warm_up()  # load (or compile) once here: forked workers inherit the machine code
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            warm_up()  # compile once here: the workers load the machine code from numba's cache
+        with ProcessPoolExecutor(max_workers=jobs, mp_context=worker_context()) as pool:
             futures = {pool.submit(_run_quiet, c): i for i, c in enumerate(configs)}
             for future in as_completed(futures):
                 results[futures[future]] = future.result()

@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import itertools
-import multiprocessing
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -18,6 +17,7 @@ from katana_curiosity.core.explorer import PLAN, QUERY  # noqa: E402
 
 from .experiments import RunResult  # noqa: E402
 from .metrics import experience_histogram  # noqa: E402
+from .processes import worker_context  # noqa: E402
 from .sweep import SweepSpec, matches  # noqa: E402
 
 STRATEGY_LABELS = {
@@ -244,20 +244,18 @@ def _figure_tasks(results: Sequence[RunResult], out: Path) -> list[tuple[float, 
     ]
 
 
-_PENDING: list[Callable[[], None]] = []  # figure tasks handed to forked workers
-
-
-def _draw_group(indices: list[int]) -> None:
+def _draw_group(results: Sequence[RunResult], out: Path, indices: list[int]) -> None:
+    tasks = _figure_tasks(results, out)
     for i in indices:
-        _PENDING[i]()
+        tasks[i][1]()
 
 
 def paper_figures(results: Sequence[RunResult], out: Path, jobs: int = 1) -> list[Path]:
     """Write fig4..fig9 for the results into `out`, in `jobs` processes (figures are
-    independent; forked workers inherit the results, so nothing is pickled)."""
+    independent; each worker is handed the results and draws its share)."""
     tasks = _figure_tasks(results, out)
     jobs = max(1, min(jobs, len(tasks)))
-    if jobs == 1 or "fork" not in multiprocessing.get_all_start_methods():
+    if jobs == 1:
         for _, draw in tasks:
             draw()
     else:
@@ -268,14 +266,9 @@ def paper_figures(results: Sequence[RunResult], out: Path, jobs: int = 1) -> lis
             g = loads.index(min(loads))
             groups[g].append(i)
             loads[g] += tasks[i][0]
-        _PENDING[:] = [draw for _, draw in tasks]
-        try:
-            context = multiprocessing.get_context("fork")
-            with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
-                for future in [pool.submit(_draw_group, g) for g in groups]:
-                    future.result()
-        finally:
-            _PENDING.clear()
+        with ProcessPoolExecutor(max_workers=jobs, mp_context=worker_context()) as pool:
+            for future in [pool.submit(_draw_group, list(results), out, g) for g in groups]:
+                future.result()
     return [out / f"fig{i}.png" for i in range(4, 10)]
 
 
