@@ -17,6 +17,7 @@ from katana_curiosity.curiosity_node import CuriosityNode
 from katana_interfaces.action import PickAndPlace
 from katana_interfaces.msg import Experience, LearnerState
 from katana_interfaces.srv import FindPlacement
+from katana_manipulation.ros_arm_port import RosArmPort
 from katana_perception.perception_node import PerceptionNode
 from sensor_msgs.msg import Image
 
@@ -169,6 +170,7 @@ def test_two_fast_sim_runs_with_one_seed_write_the_same_log(tmp_path, monkeypatc
         if run == "second":
             late_publishes = _published_late(0.4, monkeypatch)
             _late(PerceptionNode, "on_memory_blocks", 0.12, monkeypatch)
+            _late(RosArmPort, "_send", 0.05, monkeypatch)
         with InProcessGraph() as g:
             learner, _, _, _ = run_loop(g, tmp_path / run, experiments=5, seed=3)
             g.wait_for(learner.finished.is_set, timeout=250.0)

@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from action_msgs.msg import GoalStatus
+from builtin_interfaces.msg import Time
 from katana_common.action_client import ActionClient
 from katana_common.futures import Stopped, wait_for_future
 from katana_common.qos import JOINT_STATE_QOS, STATE_QOS
@@ -89,6 +90,7 @@ class RobotEnvironment:
         self._done_ns = 0
         self._experience: int | None = None  # the last experience out, awaited from the memory
         self._reset_stamp_ns: int | None = None  # the last reset's scene stood from (camera time)
+        self._arm_reset = Time()  # ... and its arm's: each pick-and-place plans from joints since
         self._stood_ns: int | None = None  # ... as awaited after the scene change it caused
         self._joint_states = 0
         self._arm_ready: bool | None = None  # the driver's arm_ready; None: none heard yet
@@ -433,7 +435,8 @@ class RobotEnvironment:
                 raise Unrealisable("no_block_to_move",
                                    "no accessible block to move for this placement")
             goal = PickAndPlace.Goal(block_id=block.id, pick=block.pose, block_size=block.size,
-                                     place=instance.placement)
+                                     place=instance.placement,
+                                     joint_states_after=self._arm_reset)
             result = self._send_pick_place(goal)
             if result.success:
                 return block.id, attempts
@@ -519,6 +522,7 @@ class RobotEnvironment:
         if not response.success:
             raise ExperimentAborted("reset_failed", f"reset_world: {response.message}")
         self._reset_stamp_ns = _time_ns(response.stamp) or None
+        self._arm_reset = copy.copy(response.stamp)
         return response.message
 
 

@@ -149,6 +149,9 @@ def test_after_a_reset_the_next_look_waits_for_a_settled_frame_of_the_new_scene(
     for stood, (frame_ns, settled) in zip(fake.reset_stamps_ns, fake.seen_at_observe[1:],
                                           strict=False):
         assert frame_ns >= stood and settled >= 1, (frame_ns - stood, settled)
+    # the reset moved the arm: every pick-and-place after it plans from joints stamped since
+    after = [g.joint_states_after.sec * 10**9 + g.joint_states_after.nanosec for g in fake.goals]
+    assert after and after == [fake.reset_stamps_ns[-1]] * len(after)
 
 
 def test_unreachable_picks_try_another_block_and_unreachable_places_drop(tmp_path) -> None:

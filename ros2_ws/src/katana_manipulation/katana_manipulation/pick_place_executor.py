@@ -93,6 +93,7 @@ class PickPlaceExecutor(Node):
         self.stopping = threading.Event()
         self.state_lock = threading.Lock()
         self.latest_joints: dict[str, float] | None = None
+        self.latest_joints_ns = -1  # the stamp of the joint_states that last completed them
         self._busy = threading.Lock()
         clients = ReentrantCallbackGroup()
         self.arm_client = ActionClient(self, FollowJointTrajectory, ARM_ACTION,
@@ -132,6 +133,8 @@ class PickPlaceExecutor(Node):
             merged.update(zip(msg.name, msg.position, strict=True))
             if all(n in merged for n in m.ALL_JOINTS):
                 self.latest_joints = merged
+                self.latest_joints_ns = (msg.header.stamp.sec * 10**9
+                                         + msg.header.stamp.nanosec)
 
     def _feedback(self, goal_handle):
         def publish(phase: str, progress: float) -> None:
@@ -152,6 +155,13 @@ class PickPlaceExecutor(Node):
             out = pp.PickPlaceResult(False, pp.ABORTED, "another pick_and_place is running")
             return self._finish(goal_handle, g, out)
         try:
+            after = g.joint_states_after
+            after_ns = after.sec * 10**9 + after.nanosec
+            if after_ns > 0 and self.port.joint_positions(after_ns) is None:
+                # the arm was moved outside this action (a world reset): plan from where it is
+                out = pp.PickPlaceResult(False, pp.TIMEOUT, "no joint_states stamped at or "
+                                         f"after {after_ns / 1e9:.3f} s (joint_states_after)")
+                return self._finish(goal_handle, g, out)
             req = pp.PickPlaceRequest(
                 pick=(g.pick.position.x, g.pick.position.y, g.pick.position.z),
                 pick_yaw=yaw_of(g.pick.orientation),

@@ -99,13 +99,15 @@ class RosArmPort:
         return pp.GripResult(ok, r.position, r.stalled, r.reached_goal,
                              "" if ok else f"gripper goal ended with status {res.status}")
 
-    def joint_positions(self) -> dict[str, float] | None:
+    def joint_positions(self, stamped_after_ns: int = 0) -> dict[str, float] | None:
+        """The latest joint positions, once a joint_states stamped at or after
+        `stamped_after_ns` has come; None after server_timeout_s or when the node stops."""
         n = self.node
         deadline = time.monotonic() + n.params["server_timeout_s"]
         while time.monotonic() < deadline and not n.stopping.is_set():
             with n.state_lock:
-                latest = n.latest_joints
-            if latest is not None:
+                latest, stamp_ns = n.latest_joints, n.latest_joints_ns
+            if latest is not None and stamp_ns >= stamped_after_ns:
                 return dict(latest)
             n.stopping.wait(0.01)
         return None

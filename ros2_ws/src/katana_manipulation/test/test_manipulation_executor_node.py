@@ -9,13 +9,16 @@ import threading
 import pytest
 import rclpy
 from action_msgs.msg import GoalStatus
+from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Pose
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from katana_common import params as common
 from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
+from katana_common.qos import JOINT_STATE_QOS
 from katana_common.testing import wait_until
+from katana_description import models as m
 from katana_interfaces.action import PickAndPlace
 from katana_manipulation.core import pick_place as pp
 from katana_manipulation.core.reach import place_reach
@@ -26,6 +29,8 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 
 
 class Graph:
@@ -215,6 +220,40 @@ def test_missing_arm_gives_a_bounded_timeout():
         g.close()
 
 
+def test_a_goal_waits_for_joint_states_stamped_after_its_joint_states_after():
+    """A world reset moves the arm outside the executor's goals: a goal naming the reset's
+    stamp plans only from joint_states stamped at or after it, and says so when none come."""
+    g = Graph(False, [Parameter("server_timeout_s", value=1.0)])
+    pub = g.probe.create_publisher(JointState, "joint_states", JOINT_STATE_QOS)
+
+    def joints_at(sec: int) -> None:
+        pub.publish(JointState(header=Header(stamp=Time(sec=sec)), name=list(m.ALL_JOINTS),
+                               position=[*m.PARK_POSE, m.GRIPPER_OPEN, m.GRIPPER_OPEN]))
+
+    try:
+        assert wait_until(lambda: pub.get_subscription_count() > 0)
+        joints_at(10)
+        executor = g.nodes[0]
+        assert wait_until(lambda: executor.latest_joints_ns == 10 * 10**9)
+        goal = _goal((0.2, 0.0, 0.015), (0.2, 0.1, 0.015))
+        goal.joint_states_after = Time(sec=20)
+        res = g.run(goal, timeout=10.0)
+        assert res.result.error_code == R.TIMEOUT
+        assert "joint_states_after" in res.result.message, res.result.message
+        # joint_states stamped at the reset come while the goal waits: it goes on to the arm
+        # (here no arm answers: a timeout naming the gripper action, not the joint states)
+        timer = threading.Timer(0.3, joints_at, (20,))
+        timer.start()
+        res = g.run(goal, timeout=10.0)
+        timer.join()
+        assert executor.latest_joints_ns == 20 * 10**9
+        assert res.result.error_code == R.TIMEOUT
+        assert "joint_states" not in res.result.message and "gripper" in res.result.message, \
+            res.result.message
+    finally:
+        g.close()
+
+
 def test_invalid_executor_parameters_name_the_parameter():
     ctx = Context()
     rclpy.init(context=ctx)
@@ -243,6 +282,9 @@ def pick_place_goals(draw):
                                    | st.floats(-1, 1)) for _ in range(4))
     goal.block_size.x, goal.block_size.y, goal.block_size.z = (
         draw(st.floats(allow_nan=True, allow_infinity=True) | st.just(0.04)) for _ in range(3))
+    # stamps the sim's joint_states pass within its first seconds (the far future: above)
+    goal.joint_states_after = Time(sec=draw(st.integers(0, 1)),
+                                   nanosec=draw(st.integers(0, 999_999_999)))
     return goal
 
 

@@ -8,6 +8,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 
+from builtin_interfaces.msg import Time
 from katana_bringup.run import default_params_files, load_params
 from katana_common.action_client import ActionClient
 from katana_common.futures import wait_for_future
@@ -42,6 +43,7 @@ class GraphClient:
         node.create_subscription(BlockArray, "sim/ground_truth", self._on_truth, STATE_QOS)
         node.create_subscription(BlockArray, "memory/blocks", self._on_memory, STATE_QOS)
         self.reset_client = node.create_client(ResetWorld, "sim_node/reset_world")
+        self.arm_reset = Time()  # the last reset's stamp: pick-and-place plans from joints since
         self.find_client = node.create_client(FindPlacement, "fovea/find_placement")
         self.pick_place = ActionClient(node, PickAndPlace, "pick_and_place")
 
@@ -89,6 +91,7 @@ class GraphClient:
         response = self.call(self.reset_client, ResetWorld.Request(seed=int(seed)))
         if not response.success:
             raise RuntimeError(f"reset_world: {response.message}")
+        self.arm_reset = response.stamp
         self.settled()
 
     def settled(self, min_sim_s: float = 0.6, timeout_s: float = 30.0) -> list[TrueBlock]:
@@ -121,7 +124,7 @@ class GraphClient:
     def pick_and_place(self, block, place_pose, timeout_s: float = 120.0):
         """Pick `block` (a ground-truth Block) and place it at `place_pose`; the result."""
         goal = PickAndPlace.Goal(block_id=block.id, pick=block.pose, block_size=block.size,
-                                 place=place_pose)
+                                 place=place_pose, joint_states_after=self.arm_reset)
         handle = wait_for_future(self.pick_place.send_goal_async(goal), 30.0,
                                  "pick_and_place goal", stop=self.stop)
         if not handle.accepted:

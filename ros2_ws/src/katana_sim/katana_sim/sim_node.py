@@ -260,7 +260,9 @@ class SimNode(Node):
                 self.world.cancel_trajectory("world reset")
                 self.world.cancel_gripper()
                 self.world.reset(None if request.seed < 0 else int(request.seed))
-                self.outputs.truth_pub.publish(self.outputs.ground_truth_msg())
+                # the new arm and scene at once, before the answer: a pick-and-place asked
+                # for after it plans from the reset arm, not from a stale joint_states
+                self.outputs.publish_due(images=False, force=True)
                 seed = self.world.last_seed
                 response.stamp = time_msg(self.world.time)  # no image before it shows it
         except (RuntimeError, ValueError, OverflowError) as exc:

@@ -241,6 +241,35 @@ def test_reset_world_scatters_again(graph):
     assert all(b.level == 1 and b.visible for b in graph["sim"].ground_truth_msg().blocks)
 
 
+def test_reset_world_publishes_the_reset_arm_before_it_answers(graph):
+    """A pick-and-place asked for after a reset must plan from the parked arm with open
+    fingers: joint_states stamped at the reset's stamp go out before the answer (the fast sim
+    otherwise publishes them at most every 0.1 s of wall time, and an executor holding the
+    fingers of before decided to skip its opening grip, a different task under load)."""
+    sim, probe = graph["sim"], graph["probe"]
+    closed = 0.5 * (m.GRIPPER_OPEN + m.GRIPPER_CLOSED)
+    grip = GripperCommand.Goal()
+    grip.command.position, grip.command.max_effort = closed, 0.0
+    assert _send(graph["grip"], grip).status == GoalStatus.STATUS_SUCCEEDED
+    states: list[JointState] = []
+    sub = probe.create_subscription(JointState, "joint_states", states.append, JOINT_STATE_QOS)
+    try:
+        assert wait_until(lambda: states)
+        resp = _result(graph["reset"].call_async(ResetWorld.Request(seed=7)))
+        assert resp.success
+        # the pacing thread's next joint_states are stamped later: it advances the clock first
+        assert wait_until(lambda: any(s.header.stamp == resp.stamp for s in states), 2.0), \
+            "no joint_states stamped at the reset: not published with it"
+        at_reset = [s for s in states if s.header.stamp == resp.stamp]
+        pos = dict(zip(at_reset[-1].name, at_reset[-1].position, strict=True))
+        assert [pos[n] for n in m.ARM_JOINTS] == pytest.approx(m.PARK_POSE, abs=1e-3)
+        assert [pos[n] for n in m.FINGER_JOINTS] == pytest.approx(
+            [m.GRIPPER_OPEN] * len(m.FINGER_JOINTS), abs=1e-3)
+    finally:
+        probe.destroy_subscription(sub)
+    assert sim.world.last_seed == 7
+
+
 @pytest.mark.parametrize(
     ("param", "value"),
     [
