@@ -33,6 +33,7 @@ from .core.block_choice import BlockView, PickReach, choose_block_to_move, movab
 from .core.environment import Outcome, Setting
 from .core.explorer import Choice
 from .core.robot_loop import (
+    ARM_MOVED_RESULTS,
     GIVE_UP,
     UNREALISABLE,
     ExecutionRecord,
@@ -272,14 +273,18 @@ class RobotEnvironment:
             _stamp_ns(self._blocks) >= after or self._blocks_count > count + 3),
             self.config.blocks_timeout_s, f"{BLOCKS_TOPIC} after the scene changed")
 
-    def mark_scene_changed(self, experience: int | None = None) -> None:
+    def mark_scene_changed(self, experience: int | None = None,
+                           parked_ns: int | None = None) -> None:
         """`experience`: the index of the experience about to go out on curiosity/experience
         (the memory echoes it); None: the scene changed without one (after `reset`, from the
-        time its answer gave)."""
+        time its answer gave; after a failed pick-and-place, from `parked_ns`, when the arm
+        had parked on this node's clock, which must be the camera's, as for
+        wait_for_scene_after)."""
         self._experience = experience
         self._count_at_done = self.blocks_count()
         self._done_ns = self.node.get_clock().now().nanoseconds
-        self._stood_ns = self._reset_stamp_ns if experience is None else None
+        stood = self._reset_stamp_ns if parked_ns is None else parked_ns
+        self._stood_ns = stood if experience is None else None
         self._reset_stamp_ns = None
 
     def observe(self) -> Setting:
@@ -441,6 +446,14 @@ class RobotEnvironment:
             if result.success:
                 return block.id, attempts
             name = _code_name(result.error_code)
+            if name in ARM_MOVED_RESULTS:
+                # what the memory shows next (a retry's block, the next experiment's setting)
+                # must come from an image taken after the arm parked, not whichever it had (a
+                # memory that stamps nothing: by the count, as after a stampless reset)
+                stamped = self._blocks is not None and _stamp_ns(self._blocks) > 0
+                self.mark_scene_changed(
+                    parked_ns=self.node.get_clock().now().nanoseconds if stamped else None)
+                self.wait_until_current()
             reason = f"pick_and_place of {block.id}: {result.message} ({name})"
             action = after_failed_pick_place(name, attempts, self.config.grasp_retries)
             if action == UNREALISABLE:

@@ -48,6 +48,9 @@ class FakeGraph(Node):
         self.reset_ahead_s = reset_ahead_s
         self.reset_stamps_ns: list[int] = []
         self.frame_ns = 0  # the stamp of the last memory/blocks published
+        self.frames: list[tuple[int, int]] = []  # (stamp, settled frames) of each one (stamped)
+        self.goal_ns: list[int] = []  # the clock when each goal came
+        self.result_ns: list[int] = []  # ... and when its result went out
         self.seen_at_observe: list[tuple[int, int]] = []  # (frame stamp, settled frames)
         self.experiences: list[Experience] = []
         self.echo = (-1, 0)  # (last experience, settled frames), as block_memory_node numbers them
@@ -75,8 +78,9 @@ class FakeGraph(Node):
         msg = BlockArray(experience=self.echo[0], settled_frames=self.echo[1])
         msg.header.frame_id = "world"
         if self.reset_ahead_s is not None:
-            msg.header.stamp = self.get_clock().now().to_msg()
             self.frame_ns = self.get_clock().now().nanoseconds
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(self.frame_ns, 10**9)
+            self.frames.append((self.frame_ns, msg.settled_frames))
         for i, (x, y) in enumerate(BLOCK_XY):
             b = Block(id=f"b{i}", color=f"c{i}", level=1, on_top=True, visible=True,
                       resting_pose_known=True)
@@ -119,6 +123,7 @@ class FakeGraph(Node):
 
     def pick_place(self, goal_handle):
         self.goals.append(goal_handle.request)
+        self.goal_ns.append(self.get_clock().now().nanoseconds)
         self.goal_started.set()
         while self.hold_goals is not None and self.hold_goals.is_set():
             time.sleep(0.01)
@@ -126,6 +131,7 @@ class FakeGraph(Node):
             goal_handle.succeed()
         except Exception:  # noqa: BLE001 - the test graph closed under a held goal
             return PickAndPlace.Result()
+        self.result_ns.append(self.get_clock().now().nanoseconds)
         if self.failures:
             return PickAndPlace.Result(success=False, error_code=self.failures.pop(0),
                                        message="scripted failure")

@@ -154,6 +154,21 @@ def test_after_a_reset_the_next_look_waits_for_a_settled_frame_of_the_new_scene(
     assert after and after == [fake.reset_stamps_ns[-1]] * len(after)
 
 
+def test_after_a_failed_pick_and_place_the_memory_is_read_from_after_the_arm_parked(
+        tmp_path) -> None:
+    """A missed grasp or a slipped block may have moved blocks: the retry's block, and the next
+    experiment's setting after a drop, come from a memory/blocks of an image stamped after the
+    arm parked, with a settled frame, not from whichever the memory had."""
+    codes = PickAndPlace.Result
+    node, fake, _ = run_graph(tmp_path, max_experiments=2, reset_ahead_s=0.3,
+                              failures=[codes.GRASP_MISSED, codes.BLOCK_SLIPPED])
+    assert len(fake.goal_ns) >= 3 and fake.observations >= 2
+    for failed in (0, 1):  # the retry after the miss; the next experiment's goal after the slip
+        parked, next_goal = fake.result_ns[failed], fake.goal_ns[failed + 1]
+        assert any(parked <= stamp <= next_goal and settled > 0
+                   for stamp, settled in fake.frames), (failed, parked, next_goal)
+
+
 def test_unreachable_picks_try_another_block_and_unreachable_places_drop(tmp_path) -> None:
     codes = PickAndPlace.Result
     node, fake, _ = run_graph(tmp_path, max_experiments=2, failures=[

@@ -197,6 +197,13 @@ def leave_until_moved(result: str, action: str) -> bool:
     return action in (TRY_ANOTHER, GIVE_UP) and result in (*POLICY_RESULTS, "block_slipped")
 
 
+#: failed pick-and-places after which the arm may have moved blocks (a grasp that missed, a block
+#: that slipped, a move that stopped short, timed out or was aborted): the scene is looked at
+#: again only in an image taken after the arm parked (RobotEnvironment.mark_scene_changed)
+ARM_MOVED_RESULTS = ("grasp_missed", "block_slipped", "arm_did_not_reach", "timeout",
+                     "aborted")
+
+
 def after_failed_pick_place(result: str, attempts: int, retries: int) -> str:
     """The retry policy: a missed grasp is tried again (the paper's robot did), an unreachable
     pick tries another block, an unreachable place cannot be realised (a planner then tries
