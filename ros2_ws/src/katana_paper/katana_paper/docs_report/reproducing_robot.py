@@ -96,12 +96,15 @@ def _robot_settings(data: Json) -> str:
     return (made_by(robot_paper_command(data), data)
             + f" Each run is {get(data, 'experiments')} experiments; seeds "
             f"{', '.join(str(s) for s in get(data, 'seeds', default=[]))}."
-            + RERUN_CAVEAT)
+            + RERUN_NOTE)
 
 
-#: the fast sim's runs are not reproducible to the digit on a loaded machine (DESIGN.md)
-RERUN_CAVEAT = (" A rerun need not repeat these figures to the digit: on a loaded machine two "
-                "runs of one seed can part (docs/DESIGN.md, after the fast sim's /clock).")
+#: what a rerun repeats (DESIGN.md: the orderings that keep the fast sim deterministic)
+RERUN_NOTE = (" A rerun of the same seeds writes the same experiment logs (but for their wall "
+              "times) on this machine, "
+              "loaded or not (two runs of `make robot-paper` side by side were equal in all 8 "
+              "runs; docs/DESIGN.md, after the fast sim's /clock). Not checked across CPUs, whose "
+              "floating-point paths may differ.")
 
 
 #: section 3.3's runs: their settings, the table and the verdicts on the paper's claims (from
