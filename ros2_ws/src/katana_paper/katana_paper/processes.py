@@ -11,8 +11,15 @@ from __future__ import annotations
 import multiprocessing
 from multiprocessing.context import BaseContext
 
+#: imported once by the fork server, so that every worker it forks starts with them loaded
+PRELOAD = ("katana_paper.experiments", "katana_paper.figures")
+
 
 def worker_context() -> BaseContext:
     """forkserver where the platform has one (Linux, macOS), else spawn."""
     methods = multiprocessing.get_all_start_methods()
-    return multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
+    if "forkserver" not in methods:
+        return multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(list(PRELOAD))  # no effect once the server runs
+    return context
