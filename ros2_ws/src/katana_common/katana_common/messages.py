@@ -39,6 +39,12 @@ def to_seconds(msg: Time | Duration) -> float:
     return float(msg.sec) + float(msg.nanosec) * 1e-9
 
 
+def to_nanoseconds(msg: Time | Duration) -> int:
+    """Nanoseconds of a builtin_interfaces Time or Duration, exactly (stamps compared as
+    orderings)."""
+    return int(msg.sec) * _NS + int(msg.nanosec)
+
+
 def multi_dof_joints(goal) -> list[str]:
     """Joints a control_msgs/FollowJointTrajectory goal names in its multi-DOF parts
     (multi_dof_trajectory, component tolerances), "<unnamed>" for multi-DOF points without

@@ -14,13 +14,14 @@ import uuid
 
 import pytest
 import rclpy
+from builtin_interfaces.msg import Time
 from control_msgs.action import GripperCommand
 from hypothesis import given
 from hypothesis import strategies as st
 from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.futures import Stopped, wait_for_future
-from katana_common.messages import duration_msg, time_msg, to_seconds
+from katana_common.messages import duration_msg, time_msg, to_nanoseconds, to_seconds
 from katana_common.node_runner import EXIT_INVALID_CONFIGURATION, EXIT_OK
 from katana_common.param_spec import Param
 from katana_common.params import ParameterError, declare_parameters
@@ -247,6 +248,13 @@ def test_time_round_trips_to_the_nanosecond(seconds):
     msg = time_msg(seconds)
     assert 0 <= msg.nanosec < 1_000_000_000
     assert abs(to_seconds(msg) - seconds) <= 1e-9 + abs(seconds) * 1e-15
+
+
+@given(st.integers(0, 2**31 - 1), st.integers(0, 999_999_999))
+def test_nanoseconds_of_a_stamp_are_exact(sec, nanosec):
+    stamp = Time(sec=sec, nanosec=nanosec)
+    assert to_nanoseconds(stamp) == sec * 1_000_000_000 + nanosec  # beyond a float's 2**53
+    assert divmod(to_nanoseconds(stamp), 1_000_000_000) == (sec, nanosec)
 
 
 @given(st.floats(min_value=-1e6, max_value=1e6))

@@ -19,6 +19,7 @@ from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Time
 from katana_common.action_client import ActionClient
 from katana_common.futures import Stopped, wait_for_future
+from katana_common.messages import to_nanoseconds
 from katana_common.qos import JOINT_STATE_QOS, STATE_QOS
 from katana_description.models import stands_upright
 from katana_interfaces.action import PickAndPlace
@@ -534,7 +535,7 @@ class RobotEnvironment:
         response = self._call(client, ResetWorld.Request(seed=seed))
         if not response.success:
             raise ExperimentAborted("reset_failed", f"reset_world: {response.message}")
-        self._reset_stamp_ns = _time_ns(response.stamp) or None
+        self._reset_stamp_ns = to_nanoseconds(response.stamp) or None
         self._arm_reset = copy.copy(response.stamp)
         return response.message
 
@@ -547,11 +548,7 @@ _STAMP_MARGIN_NS = 100_000_000
 
 
 def _stamp_ns(msg: BlockArray) -> int:
-    return _time_ns(msg.header.stamp)
-
-
-def _time_ns(stamp) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    return to_nanoseconds(msg.header.stamp)
 
 
 def _cancel(handle) -> None:

@@ -23,6 +23,7 @@ from control_msgs.action import FollowJointTrajectory, GripperCommand
 from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.futures import Stopped
+from katana_common.messages import to_nanoseconds
 from katana_common.node_runner import run_node
 from katana_common.params import Param, declare_parameters
 from katana_common.qos import JOINT_STATE_QOS
@@ -133,8 +134,7 @@ class PickPlaceExecutor(Node):
             merged.update(zip(msg.name, msg.position, strict=True))
             if all(n in merged for n in m.ALL_JOINTS):
                 self.latest_joints = merged
-                self.latest_joints_ns = (msg.header.stamp.sec * 10**9
-                                         + msg.header.stamp.nanosec)
+                self.latest_joints_ns = to_nanoseconds(msg.header.stamp)
 
     def _feedback(self, goal_handle):
         def publish(phase: str, progress: float) -> None:
@@ -155,8 +155,7 @@ class PickPlaceExecutor(Node):
             out = pp.PickPlaceResult(False, pp.ABORTED, "another pick_and_place is running")
             return self._finish(goal_handle, g, out)
         try:
-            after = g.joint_states_after
-            after_ns = after.sec * 10**9 + after.nanosec
+            after_ns = to_nanoseconds(g.joint_states_after)
             if after_ns > 0 and self.port.joint_positions(after_ns) is None:
                 # the arm was moved outside this action (a world reset): plan from where it is
                 out = pp.PickPlaceResult(False, pp.TIMEOUT, "no joint_states stamped at or "
