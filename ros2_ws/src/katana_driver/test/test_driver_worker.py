@@ -7,7 +7,7 @@ from katana_driver.core import motion
 from katana_driver.core import protocol as p
 from katana_driver.core.arm import ArmWorker
 from katana_driver.core.encoders import EncoderModel
-from katana_driver.core.splines import plan_trajectory
+from katana_driver.core.splines import hold_segment, plan_trajectory
 from katana_driver.core.transport import TcpTransport
 from katana_emulator.arms import MODELS
 
@@ -360,3 +360,104 @@ def test_an_unknown_status_is_logged_once(make_emulator, worker_for):
     assert w.wait(lambda: w.worker.polls > polls + 25)  # status is read every 10th poll
     warnings = [t for level, t in w.logs if level == "warn" and "status 99" in t]
     assert len(warnings) == 1 and "unknown to the driver" in warnings[0]
+
+
+class Requests:
+    """Every request the emulator handles, in order (its first bytes)."""
+
+    def __init__(self, emulator):
+        self.log: list[bytes] = []
+        handle = emulator.model.handle
+
+        def recording(request):
+            self.log.append(bytes(request[:3]))
+            return handle(request)
+
+        emulator.model.handle = recording
+
+    FLUSH = p.motor_command(p.ALL_MOTORS, p.FLAG_FLUSH).payload[:3]
+    READ_STATUS = p.read_status().payload[:3]
+
+    def since(self, mark: int) -> list[bytes]:
+        return self.log[mark:]
+
+
+def _play(w, goal, seconds=2.0):
+    """Stream a trajectory from where the arm is to ``goal`` and wait until every arm motor
+    reports done after its end; the worker's state then."""
+    plan = plan_trajectory(MODEL, w.worker.state.encoders, [seconds], [goal])
+    with w.worker.busy():
+        stream = w.worker.start_trajectory(plan)
+        t0 = stream.started.result(timeout=5)
+        stream.finished_sending.result(timeout=10)
+        end = t0 + stream.lag_s + plan.duration_s
+        assert w.wait(lambda: w.worker.state.status_stamp > end and all(
+            s in p.REST_STATUSES for s in w.worker.state.status[:5]))
+    return plan
+
+
+def test_a_trajectory_after_one_that_played_out_starts_without_a_flush_or_a_read(
+        make_emulator, worker_for):
+    """As KNI and the ROS 1 node: no flush before a trajectory when the buffers are known
+    empty, and the fingers held where the last poll found them at rest (their true place)."""
+    emulator = make_emulator(calibrated=True)
+    w = worker_for(emulator)
+    assert w.wait(lambda: w.worker.ready)
+    requests = Requests(emulator)
+    _play(w, [-2.7, 1.9, -1.9, -1.7, -2.6])
+    assert requests.log.count(Requests.FLUSH) == 1  # the first after the connection
+    # the fingers move, then rest; a poll sees them at rest
+    target = int(MODEL.gripper_angle_to_encoder(0.1))
+    with w.worker.busy():
+        w.worker.call(lambda client: client.gripper(target))
+        assert w.wait(lambda: w.worker.state.status[5] == p.STATUS_HOLDING)
+        polls = w.worker.polls
+        assert w.wait(lambda: w.worker.polls > polls + 1)
+    resting = emulator.model.encoders()[5]
+    mark = len(requests.log)
+    plan = _play(w, [-2.4, 1.7, -1.6, -1.4, -2.3])
+    after = requests.since(mark)
+    assert Requests.FLUSH not in after
+    first_h = next(i for i, r in enumerate(after) if r[:1] == b"H")
+    assert after[first_h - 1] == Requests.READ_STATUS  # a poll's read, not one of the start's
+    assert w.worker._stream is None and plan.segments
+    assert emulator.model.encoders()[5] == resting  # the fingers held where they rested
+    assert abs(resting - target) <= 2
+
+
+@pytest.mark.parametrize("left", ["a queued segment", "a collision", "a new connection"])
+def test_a_trajectory_after_the_buffers_may_hold_segments_starts_with_a_flush(
+        make_emulator, worker_for, left):
+    emulator = make_emulator(calibrated=True)
+    w = worker_for(emulator)
+    assert w.wait(lambda: w.worker.ready)
+    requests = Requests(emulator)
+    _play(w, [-2.7, 1.9, -1.9, -1.7, -2.6])
+    start = list(emulator.model.encoders())
+    mark = len(requests.log)  # a flush must come after what may leave segments behind
+    if left == "a queued segment":  # sent by hand, never started: it would play first
+        stale = plan_trajectory(MODEL, start, [3.0], [[-1.5, 1.9, -1.9, -1.7, -2.6]])
+        row = [*stale.segments[0], hold_segment(start[5], stale.segments[0][0].duration)]
+        w.worker.call(lambda client: client.send_spline_all(row, p.ACTIVITY_QUEUE))
+    elif left == "a collision":
+        emulator.model.collision_detection = True
+        assert emulator.model.inject_collision(2)
+        assert w.wait(lambda: bool(w.worker.collision_message))
+    else:
+        emulator.drop_connection()
+        assert w.wait(lambda: any("lost connection" in t for _, t in w.logs))
+        assert w.wait(lambda: w.worker.ready and w.worker.connected)
+    with w.worker.busy():
+        polls = w.worker.polls
+        assert w.wait(lambda: w.worker.polls > polls + 1)
+    goal = [-2.8, 1.95, -1.95, -1.75, -2.65]
+    highest = []
+    w.worker.on_state = lambda state: highest.append(state.positions[0])
+    played_from = len(requests.log)
+    _play(w, goal)
+    first_h = next(i for i in range(played_from, len(requests.log))
+                   if requests.log[i][:1] == b"H")
+    assert Requests.FLUSH in requests.log[mark:first_h]
+    assert w.worker.state.positions[:5] == pytest.approx(goal, abs=2e-3)
+    # the pan never went towards the stale segment's -1.5 rad
+    assert max(highest) < MODEL.encoders_to_joint_positions(start)[0] + 0.01

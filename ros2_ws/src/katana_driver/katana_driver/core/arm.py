@@ -123,6 +123,14 @@ class ArmWorker(TrajectoryStreaming):
         self._status = [p.STATUS_INVALID] * 6
         self._unknown_statuses: set[int] = set()  # status values logged as unknown
         self._status_stamp = 0.0
+        self._status_commands = -1  # client.motion_commands when _status was read
+        #: (client.motion_commands, motor 6's encoder) of the last poll that read the fingers
+        #: after a status read found them at rest, with nothing commanded in between
+        self._gripper_rest: tuple[int, int] | None = None
+        #: the move buffers hold nothing once every arm motor reports done in a status read
+        #: after this monotonic time; None: unknown (a flush is owed before the next trajectory)
+        self._queue_empty_after: float | None = None
+        self._queue_empty_splines = -1  # client.spline_commands when that was set
         self._stream: Stream | None = None
         self._busy = 0
         self._busy_lock = threading.Lock()
@@ -299,6 +307,7 @@ class ArmWorker(TrajectoryStreaming):
                 self._cond.notify_all()
 
     def _open_link(self) -> bool:
+        self._queue_empty_after = None  # a controller met again may hold anything
         try:
             self.transport.open()
             self.client.echo()
@@ -403,8 +412,7 @@ class ArmWorker(TrajectoryStreaming):
                         self.client.hold_motor(motor, enc)
                     except p.ControllerError as exc:
                         self._log("warn", f"could not unblock motor {motor}: {exc}")
-            self._status = self.client.read_status()
-            self._status_stamp = time.monotonic()
+            self._read_status()
         enc = self.client.read_positions()[5]
         lo, hi = self.model.safe_range(6, self.limit_margin)
         try:
@@ -479,14 +487,18 @@ class ArmWorker(TrajectoryStreaming):
         raise TransportError(f"the motors did not {what} in 10 s")
 
     def _poll(self, force_status: bool = False) -> None:
+        # Motor 6 at rest in the last status read, and nothing commanded since: the positions
+        # read now hold its final place (_resting_gripper_encoder).
+        gripper_rested = (self._status_commands == self.client.motion_commands
+                          and self._status[5] in p.REST_STATUSES)
         encoders = self.client.read_positions()
         now = time.monotonic()
         self.polls += 1
+        self._gripper_rest = (self.client.motion_commands, encoders[5]) if gripper_rested else None
         with self._busy_lock:
             busy = self._busy > 0
         if force_status or busy or self._stream is not None or self.polls % self.status_every == 0:
-            self._status = self.client.read_status()
-            self._status_stamp = time.monotonic()
+            self._read_status()
             for value in set(self._status) - p.KNOWN_STATUSES - self._unknown_statuses:
                 self._unknown_statuses.add(value)
                 self._log("warn", f"a motor reports status {value}, unknown to the driver "
@@ -515,7 +527,16 @@ class ArmWorker(TrajectoryStreaming):
             except Exception as exc:  # noqa: BLE001 - a listener failure must not stop polling
                 self._log("error", f"joint state listener failed: {exc}")
 
+    def _read_status(self) -> list[int]:
+        """Read the status flags; they, their stamp and the motion commands sent before them
+        are kept (``_status``, ``_status_stamp``, ``_status_commands``)."""
+        self._status_commands = self.client.motion_commands
+        self._status = self.client.read_status()
+        self._status_stamp = time.monotonic()
+        return self._status
+
     def _on_collision(self) -> None:
+        self._queue_empty_after = None  # stopped mid-trajectory: segments may be left
         axes = [i + 1 for i, s in enumerate(self._status) if s == p.STATUS_COLLISION]
         err = None
         try:
@@ -531,6 +552,7 @@ class ArmWorker(TrajectoryStreaming):
     def _link_lost(self, message: str) -> None:
         self.transport.close()
         self.connected = False
+        self._queue_empty_after = None
         self.link_losses += 1
         self._freeze_on_connect = True
         self.link_error = f"lost connection to the Katana controller ({message})"
@@ -552,7 +574,7 @@ class ArmWorker(TrajectoryStreaming):
         if self._stream is not None:
             self._stream.cancelled = True
             self._end_stream(None)
-        client.flush_buffers()
+        self._flush(client)
         encoders = client.read_positions()
         client.hold_all(encoders[:6])
         self._freeze_on_connect = False

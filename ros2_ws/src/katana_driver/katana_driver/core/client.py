@@ -13,6 +13,10 @@ class KatanaClient:
 
     def __init__(self, transport: Transport) -> None:
         self.transport = transport
+        #: commands that can move a motor (C, G, G+128, H) handed to the transport so far,
+        #: counted before each is sent: a state read when this was unchanged since is current
+        self.motion_commands = 0
+        self.spline_commands = 0  # of which G, G+128 and H: what fills the move buffers
 
     def _call(self, command: p.Command) -> bytes:
         """An idempotent request: re-sent by the transport on a lost or corrupt reply."""
@@ -20,11 +24,15 @@ class KatanaClient:
 
     def _once(self, command: p.Command) -> bytes | None:
         """A command that must not act twice: sent once (transport.NoReply: outcome unknown).
-        Returns the reply payload, or None when a reply came but was unreadable."""
+        Returns the reply payload, or None when a reply came but was unreadable. Only motion
+        commands (G, G+128, H, some C) are sent this way."""
+        self.motion_commands += 1
         return self.transport.command(command.payload, command.reply_len)
 
     def _motor(self, command: p.Command, once: bool = False) -> None:
         """A ``C`` command; its reply's success byte is checked (protocol.CommandFailed)."""
+        if not once:
+            self.motion_commands += 1
         reply = self._once(command) if once else self._call(command)
         p.check_motor_reply(reply, command.payload[1] & 0x7F)
 
@@ -106,9 +114,11 @@ class KatanaClient:
     # ------------------------------------------------------------------ splines
     def send_spline(self, motor: int, segment: p.SplineSegment) -> None:
         """G: queue one motor's segment (sent once); start_splines runs what was queued."""
+        self.spline_commands += 1
         self._once(p.spline_one(motor, segment))
 
     def start_splines(self, exact: bool = False, more: bool = False) -> None:
+        self.spline_commands += 1
         self._once(p.start_splines(exact=exact, more=more))
 
     def send_spline_all(
@@ -116,6 +126,7 @@ class KatanaClient:
     ) -> None:
         """H: one segment for all six motors; ``activity`` is protocol.ACTIVITY_*. Sent once:
         a segment played twice would jump the arm (transport.NoReply: read the state)."""
+        self.spline_commands += 1
         self._once(p.spline_all(list(segments), activity, exact))
 
     # ------------------------------------------------------------------ gripper

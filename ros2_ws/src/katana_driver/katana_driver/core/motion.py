@@ -23,7 +23,6 @@ from .encoders import ARM_JOINTS, EncoderModel
 from .splines import TrajectoryError, plan_trajectory
 from .transport import NoReply, TransportError
 
-DONE_STATUS = (p.STATUS_HOLDING, p.STATUS_SPLINE_DONE)
 START_TIMEOUT_S = 5.0  # the controller takes the first segments within this
 STALE_STATE_S = 5.0  # no new joint state for this long ends the goal
 FREEZE_WAIT_S = 5.0  # after a lost link, wait this long for it to come back to freeze the arm
@@ -179,7 +178,7 @@ def _judge(judge, plan, stream, state: ArmState, t0: float, feedback) -> ac.Outc
     actual = list(state.positions[:5])
     feedback(TrajectoryFeedback(elapsed, list(desired), actual))
     end = t0 + stream.lag_s + plan.duration_s
-    at_rest = state.status_stamp >= end and all(s in DONE_STATUS for s in state.status[:5])
+    at_rest = state.status_stamp >= end and all(s in p.REST_STATUSES for s in state.status[:5])
     return judge.check(elapsed, desired, actual, at_rest=at_rest, fingers=state.positions[5])
 
 

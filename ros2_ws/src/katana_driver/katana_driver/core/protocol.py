@@ -51,6 +51,8 @@ STATUS_INVALID = 128
 STATUS_BUFFER_FULL = 152  # MSF_LINMOV: moving, the move buffer full (wait before sending more)
 #: every status that means "this motor is moving"
 MOVING_STATUSES = frozenset((STATUS_FOLLOWING, STATUS_MOVING, STATUS_BUFFER_FULL))
+#: a motor at rest: holding its target, or its splines played to the end
+REST_STATUSES = frozenset((STATUS_HOLDING, STATUS_SPLINE_DONE))
 #: every status the driver knows (the others are logged once: docs/hardware.md's checklist)
 KNOWN_STATUSES = MOVING_STATUSES | {
     STATUS_OFF, STATUS_CALIBRATING, STATUS_HOLDING, STATUS_COLLISION, STATUS_SPLINE_DONE,
