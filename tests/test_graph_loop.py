@@ -17,6 +17,7 @@ from katana_curiosity.curiosity_node import CuriosityNode
 from katana_interfaces.action import PickAndPlace
 from katana_interfaces.msg import Experience, LearnerState
 from katana_interfaces.srv import FindPlacement
+from katana_manipulation.pick_place_executor import PickPlaceExecutor
 from katana_manipulation.ros_arm_port import RosArmPort
 from katana_perception.perception_node import PerceptionNode
 from sensor_msgs.msg import Image
@@ -140,6 +141,22 @@ def _late(cls: type, name: str, seconds: float, monkeypatch) -> None:
     monkeypatch.setattr(cls, name, late)
 
 
+def _delivered_late(cls: type, name: str, seconds: float, monkeypatch) -> list[threading.Timer]:
+    """Every call of `cls.name` (a subscription's callback) made `seconds` later on a timer of
+    its own, in order, while the executor goes on: the messages reach the node late, as under
+    load. Returns the timers, to be joined before the graph closes."""
+    original = getattr(cls, name)
+    timers: list[threading.Timer] = []
+
+    def late(self, *args):
+        timer = threading.Timer(seconds, original, (self, *args))
+        timers.append(timer)
+        timer.start()
+
+    monkeypatch.setattr(cls, name, late)
+    return timers
+
+
 def _published_late(seconds: float, monkeypatch) -> list[threading.Timer]:
     """The curiosity node's experience goes out `seconds` after the loop moved on: the memory
     goes on folding images in meanwhile, as a slow link or a loaded machine would have it.
@@ -165,18 +182,39 @@ def test_two_fast_sim_runs_with_one_seed_write_the_same_log(tmp_path, monkeypatc
     frames are segmented on the levels from before the experience: only the ordering (the
     memory's experience numbering, not a time margin) keeps the runs together."""
     logs = []
-    late_publishes: list[threading.Timer] = []
+    late: list[threading.Timer] = []
     for run in ("first", "second"):
         if run == "second":
-            late_publishes = _published_late(0.4, monkeypatch)
+            late = _published_late(0.4, monkeypatch)
             _late(PerceptionNode, "on_memory_blocks", 0.12, monkeypatch)
             _late(RosArmPort, "_send", 0.05, monkeypatch)
         with InProcessGraph() as g:
             learner, _, _, _ = run_loop(g, tmp_path / run, experiments=5, seed=3)
             g.wait_for(learner.finished.is_set, timeout=250.0)
-            for timer in late_publishes:  # published into a live graph, not a closed one
+            for timer in list(late):  # delivered into a live graph, not a closed one
                 timer.join()
         logs.append([{k: v for k, v in r.items() if k not in TIMES}
                      for r in log_records(tmp_path / run)])
     assert len(logs[0]) == 5
+    assert logs[0] == logs[1], _first_difference(*logs)
+
+
+def test_joint_states_heard_late_do_not_part_two_runs(tmp_path, monkeypatch):
+    """The executor hears joint_states 0.3 s late in the second run, longer than the loop's
+    work between two tasks: a task would start from the arm as it was before the last one
+    ended. It waits for the arm shown where its last task left it (RosArmPort.settled), so the
+    runs write the same log."""
+    logs = []
+    late: list[threading.Timer] = []
+    for run in ("first", "second"):
+        if run == "second":
+            late = _delivered_late(PickPlaceExecutor, "_on_joints", 0.3, monkeypatch)
+        with InProcessGraph() as g:
+            learner, _, _, _ = run_loop(g, tmp_path / run, experiments=8, seed=2)
+            g.wait_for(learner.finished.is_set, timeout=250.0)
+            for timer in list(late):  # delivered into a live graph, not a closed one
+                timer.join()
+        logs.append([{k: v for k, v in r.items() if k not in TIMES}
+                     for r in log_records(tmp_path / run)])
+    assert len(logs[0]) == 8
     assert logs[0] == logs[1], _first_difference(*logs)

@@ -37,7 +37,7 @@ from sensor_msgs.msg import JointState
 from katana_manipulation.core import pick_place as pp
 from katana_manipulation.core.kinematics import KatanaKinematics
 from katana_manipulation.reach_params import REACH_PARAMS, planner_values
-from katana_manipulation.ros_arm_port import ARM_ACTION, GRIPPER_ACTION, RosArmPort
+from katana_manipulation.ros_arm_port import ARM_ACTION, GRIPPER_ACTION, SETTLE_WAIT_S, RosArmPort
 
 _DEFAULTS = pp.PickPlaceParams()
 #: planner parameters applied live (the next goal plans with them): parameter -> planner field
@@ -96,6 +96,7 @@ class PickPlaceExecutor(Node):
         self.latest_joints: dict[str, float] | None = None
         self.latest_joints_ns = -1  # the stamp of the joint_states that last completed them
         self._busy = threading.Lock()
+        self._reset_ns = 0  # the latest joint_states_after a goal carried (a reset's stamp)
         clients = ReentrantCallbackGroup()
         self.arm_client = ActionClient(self, FollowJointTrajectory, ARM_ACTION,
                                        callback_group=clients)
@@ -161,6 +162,13 @@ class PickPlaceExecutor(Node):
                 out = pp.PickPlaceResult(False, pp.TIMEOUT, "no joint_states stamped at or "
                                          f"after {after_ns / 1e9:.3f} s (joint_states_after)")
                 return self._finish(goal_handle, g, out)
+            # the same joint_states_after as the task before: no reset since, the arm stands
+            # where that task left it
+            if after_ns <= self._reset_ns and not self.port.settled():
+                self.get_logger().info(
+                    f"joint_states do not show the arm where the last task left it after "
+                    f"{SETTLE_WAIT_S:g} s: planning from where they show it")
+            self._reset_ns = max(self._reset_ns, after_ns)
             req = pp.PickPlaceRequest(
                 pick=(g.pick.position.x, g.pick.position.y, g.pick.position.z),
                 pick_yaw=yaw_of(g.pick.orientation),

@@ -20,6 +20,9 @@ from katana_manipulation.core import pick_place as pp
 
 ARM_ACTION = "arm_controller/follow_joint_trajectory"
 GRIPPER_ACTION = "gripper_controller/gripper_command"
+#: a task waits at most this long (wall time) for joint_states that show the arm holding where
+#: the last task left it (RosArmPort.settled)
+SETTLE_WAIT_S = 1.0
 
 
 class RosArmPort:
@@ -98,6 +101,27 @@ class RosArmPort:
         self.gripped = float(r.position) if ok else None
         return pp.GripResult(ok, r.position, r.stalled, r.reached_goal,
                              "" if ok else f"gripper goal ended with status {res.status}")
+
+    def settled(self, timeout_s: float = SETTLE_WAIT_S) -> bool:
+        """Wait (bounded) until joint_states show the arm where the last move that succeeded
+        sent it and the fingers where the last gripper goal that succeeded left them
+        (pick_place.holds_where_sent). A task starts from what joint_states say, and one taken
+        late, from before the last motion ended, would change its plan and whether it opens
+        the fingers first: runs would follow the callbacks' timing. False when the bound ran
+        out (the arm is elsewhere: the task starts from where it is) or the node stops."""
+        n = self.node
+        if self.commanded is None and self.gripped is None:
+            return True  # nothing known to hold
+        deadline = time.monotonic() + timeout_s
+        while not n.stopping.is_set():
+            with n.state_lock:
+                latest = n.latest_joints
+            if latest is not None and pp.holds_where_sent(latest, self.commanded, self.gripped):
+                return True
+            if time.monotonic() >= deadline:
+                return False
+            n.stopping.wait(0.01)
+        return False
 
     def joint_positions(self, stamped_after_ns: int = 0) -> dict[str, float] | None:
         """The latest joint positions, once a joint_states stamped at or after

@@ -254,6 +254,48 @@ def test_a_goal_waits_for_joint_states_stamped_after_its_joint_states_after():
         g.close()
 
 
+@pytest.mark.parametrize("true_pose_comes", [True, False])
+def test_a_task_starts_from_joint_states_that_show_the_arm_where_the_last_task_left_it(
+        true_pose_comes):
+    """joint_states taken late, from before the last motion ended, must not become the next
+    task's start: it waits (at most SETTLE_WAIT_S) for the arm shown where the last move sent
+    it and the fingers where the last grip left them, and starts from the latest otherwise."""
+    g = Graph(False, [Parameter("server_timeout_s", value=1.0)])
+    pub = g.probe.create_publisher(JointState, "joint_states", JOINT_STATE_QOS)
+    stale = [m.PARK_POSE[0] + 0.2, *m.PARK_POSE[1:]]
+
+    def joints_at(sec: int, arm) -> None:
+        pub.publish(JointState(header=Header(stamp=Time(sec=sec)), name=list(m.ALL_JOINTS),
+                               position=[*arm, m.GRIPPER_OPEN, m.GRIPPER_OPEN]))
+
+    try:
+        assert wait_until(lambda: pub.get_subscription_count() > 0)
+        executor = g.nodes[0]
+        # the last task left the arm parked with the fingers open; its joint_states lag
+        executor.port.commanded, executor.port.gripped = list(m.PARK_POSE), m.GRIPPER_OPEN
+        joints_at(10, stale)
+        assert wait_until(lambda: executor.latest_joints_ns == 10 * 10**9)
+        starts = []
+        read = executor.port.joint_positions
+
+        def reading(*args, **kwargs):
+            starts.append(read(*args, **kwargs))
+            return starts[-1]
+
+        executor.port.joint_positions = reading
+        timer = threading.Timer(0.3, joints_at, (11, m.PARK_POSE)) if true_pose_comes else None
+        if timer is not None:
+            timer.start()
+        res = g.run(_goal((0.2, 0.0, 0.015), (0.2, 0.1, 0.015)), timeout=10.0)
+        if timer is not None:
+            timer.join()
+        assert res.result.error_code == R.TIMEOUT  # no arm answers here
+        first = starts[0][m.ARM_JOINTS[0]]
+        assert first == pytest.approx(m.PARK_POSE[0] if true_pose_comes else stale[0])
+    finally:
+        g.close()
+
+
 def test_invalid_executor_parameters_name_the_parameter():
     ctx = Context()
     rclpy.init(context=ctx)

@@ -7,6 +7,8 @@ import threading
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from katana_description import arm_contract as ac
 from katana_description import models as m
 from katana_manipulation.core import pick_place as pp
@@ -333,3 +335,23 @@ def test_a_goal_out_of_reach_moves_nothing():
     far = pp.PickPlaceRequest((0.9, 0.0, 0.015), 0.0, (0.04, 0.04, 0.03), (0.2, 0.1, 0.015), 0.0)
     res = pp.execute_pick_place(far, port, pp.PickPlacePlanner())
     assert res.code == pp.PICK_UNREACHABLE and port.calls == []
+
+
+_OFFSETS = st.lists(st.floats(-0.05, 0.05, allow_nan=False), min_size=6, max_size=6)
+
+
+@given(offsets=_OFFSETS, commanded_known=st.booleans(), gripped_known=st.booleans())
+def test_holds_where_sent_agrees_with_the_planning_start_and_the_fingers_check(
+        offsets, commanded_known, gripped_known):
+    """holds_where_sent is true exactly when planning_start takes the commanded pose and the
+    fingers agree with the last grip within the hold tolerance (each checked here directly)."""
+    commanded = [0.3, 1.2, -1.0, -0.5, 0.2]
+    gripped = 0.1
+    joints = {n: c + d for n, c, d in zip(m.ARM_JOINTS, commanded, offsets, strict=False)}
+    for n in m.FINGER_JOINTS:
+        joints[n] = gripped + offsets[5]
+    held_arm = pp.planning_start([joints[n] for n in m.ARM_JOINTS], commanded) == commanded
+    held_fingers = abs(joints[m.FINGER_JOINTS[0]] - gripped) <= pp.HOLD_TOLERANCE_RAD
+    expected = ((held_arm or not commanded_known) and (held_fingers or not gripped_known))
+    assert pp.holds_where_sent(joints, commanded if commanded_known else None,
+                               gripped if gripped_known else None) == expected

@@ -57,6 +57,7 @@ __all__ = [
     "WORKSPACE_XY", "ArmPort", "GripResult", "MoveResult", "PickPlaceParams", "PickPlaceRequest",
     "PickPlaceResult", "PlanError", "ReachGeometry", "Segment", "PickPlacePlanner", "ProgressFn",
     "execute_pick_place", "HOLD_TOLERANCE_RAD", "GRIP_THERE_RAD", "planning_start",
+    "holds_where_sent",
 ]
 
 ProgressFn = Callable[[str, float], None]
@@ -187,6 +188,19 @@ def _fingers(joints: dict[str, float]) -> float:
 def _phases(seg: Segment) -> str:
     """The phases a (merged) move runs through, for messages: 'lift/carry/lower'."""
     return "/".join((seg.phase, *seg.also))
+
+
+def holds_where_sent(joints: dict[str, float], commanded: Sequence[float] | None,
+                     gripped: float | None) -> bool:
+    """The arm within HOLD_TOLERANCE_RAD of where its last move was sent and the fingers of
+    where its last gripper goal left them (a pose not known counts as held). What a task reads
+    from the joints at its start (planning_start, and whether the fingers need a gripper goal)
+    is then the same whenever those joints were read."""
+    if commanded is not None and not all(
+            abs(joints[n] - c) <= HOLD_TOLERANCE_RAD
+            for n, c in zip(m.ARM_JOINTS, commanded, strict=True)):
+        return False
+    return gripped is None or abs(_fingers(joints) - gripped) <= HOLD_TOLERANCE_RAD
 
 
 def planning_start(measured: Sequence[float], commanded: Sequence[float] | None) -> list[float]:
