@@ -174,6 +174,25 @@ def _published_late(seconds: float, monkeypatch) -> list[threading.Timer]:
     return timers
 
 
+def _two_runs(tmp_path, experiments: int, seed: int, make_late) -> list[list[dict]]:
+    """The logs (wall times left out) of two runs of one seed; ``make_late()`` slows the
+    second and returns the timers that deliver late, joined before its graph closes."""
+    logs = []
+    late: list[threading.Timer] = []
+    for run in ("first", "second"):
+        if run == "second":
+            late = make_late()
+        with InProcessGraph() as g:
+            learner, _, _, _ = run_loop(g, tmp_path / run, experiments=experiments, seed=seed)
+            g.wait_for(learner.finished.is_set, timeout=250.0)
+            for timer in list(late):  # delivered into a live graph, not a closed one
+                timer.join()
+        logs.append([{k: v for k, v in r.items() if k not in TIMES}
+                     for r in log_records(tmp_path / run)])
+    assert len(logs[0]) == experiments
+    return logs
+
+
 def test_two_fast_sim_runs_with_one_seed_write_the_same_log(tmp_path, monkeypatch):
     """Deterministic under a seed: settings, choices, instances, blocks moved, labels and
     dropped attempts are the same in two runs (the sim steps in lock-step with the motions,
@@ -181,21 +200,13 @@ def test_two_fast_sim_runs_with_one_seed_write_the_same_log(tmp_path, monkeypatc
     memory late while images keep coming, and the perception hears the memory late, so that
     frames are segmented on the levels from before the experience: only the ordering (the
     memory's experience numbering, not a time margin) keeps the runs together."""
-    logs = []
-    late: list[threading.Timer] = []
-    for run in ("first", "second"):
-        if run == "second":
-            late = _published_late(0.4, monkeypatch)
-            _late(PerceptionNode, "on_memory_blocks", 0.12, monkeypatch)
-            _late(RosArmPort, "_send", 0.05, monkeypatch)
-        with InProcessGraph() as g:
-            learner, _, _, _ = run_loop(g, tmp_path / run, experiments=5, seed=3)
-            g.wait_for(learner.finished.is_set, timeout=250.0)
-            for timer in list(late):  # delivered into a live graph, not a closed one
-                timer.join()
-        logs.append([{k: v for k, v in r.items() if k not in TIMES}
-                     for r in log_records(tmp_path / run)])
-    assert len(logs[0]) == 5
+
+    def make_late() -> list[threading.Timer]:
+        _late(PerceptionNode, "on_memory_blocks", 0.12, monkeypatch)
+        _late(RosArmPort, "_send", 0.05, monkeypatch)
+        return _published_late(0.4, monkeypatch)
+
+    logs = _two_runs(tmp_path, 5, 3, make_late)
     assert logs[0] == logs[1], _first_difference(*logs)
 
 
@@ -204,17 +215,6 @@ def test_joint_states_heard_late_do_not_part_two_runs(tmp_path, monkeypatch):
     work between two tasks: a task would start from the arm as it was before the last one
     ended. It waits for the arm shown where its last task left it (RosArmPort.settled), so the
     runs write the same log."""
-    logs = []
-    late: list[threading.Timer] = []
-    for run in ("first", "second"):
-        if run == "second":
-            late = _delivered_late(PickPlaceExecutor, "_on_joints", 0.3, monkeypatch)
-        with InProcessGraph() as g:
-            learner, _, _, _ = run_loop(g, tmp_path / run, experiments=8, seed=2)
-            g.wait_for(learner.finished.is_set, timeout=250.0)
-            for timer in list(late):  # delivered into a live graph, not a closed one
-                timer.join()
-        logs.append([{k: v for k, v in r.items() if k not in TIMES}
-                     for r in log_records(tmp_path / run)])
-    assert len(logs[0]) == 8
+    logs = _two_runs(tmp_path, 8, 2, lambda: _delivered_late(
+        PickPlaceExecutor, "_on_joints", 0.3, monkeypatch))
     assert logs[0] == logs[1], _first_difference(*logs)
