@@ -118,6 +118,10 @@ def _runs_inline(callback: Callable) -> bool:
     return getattr(callback, "__func__", None) in _QUICK_DONE_CALLBACKS
 
 
+#: the longest `MultiThreadedExecutor.shutdown()` waits for running callbacks when not told
+DRAIN_TIMEOUT_S = 5.0
+
+
 def _start(task: Task) -> None:
     task._executing = False  # rclpy's Task runs only when it is not marked executing
     task()
@@ -147,6 +151,19 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
         self._entities_of: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
         self._next_incompatibility_poll_ns = 0
 
+    def shutdown(self, timeout_sec: float | None = None) -> bool:
+        """Stop executing callbacks and wait for the running ones to end, as rclpy documents
+        it, at most `timeout_sec` (None or negative: DRAIN_TIMEOUT_S, so that a callback that
+        never returns cannot hang the caller); whether they all ended. rclpy 7.1.5 sets
+        `_is_shutdown` and then tests it to decide whether to wait, so it never waits, and
+        callbacks queued for a worker still started afterwards: a node destroyed after it
+        returned made such a callback raise InvalidHandle ("The following exception was never
+        retrieved" at exit). Here a queued one ends at once when a worker takes it (the
+        handler looks at the shutdown flag) and the running ones are waited for."""
+        done = super().shutdown(timeout_sec)
+        wait_s = DRAIN_TIMEOUT_S if timeout_sec is None or timeout_sec < 0 else timeout_sec
+        return self._work_tracker.wait(wait_s) and done
+
     def create_task(self, callback: Callable, *args: Any, **kwargs: Any) -> Task | Future:
         """A callback marked `runs_inline`, or one of rclpy's quick done-callbacks, runs now
         (the returned future is done); any other becomes a task, as in rclpy."""
@@ -162,15 +179,20 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
         thread after the take guarded as its last one is: `shutdown()` destroys the guard
         condition without waiting for running callbacks, and a callback started just before
         raised InvalidHandle there (printed at exit as "The following exception was never
-        retrieved"), leaving its callback group marked busy."""
+        retrieved"), leaving its callback group marked busy. A task that a worker takes after
+        `shutdown()` ends without taking its message."""
         entity._executor_event = True  # out of the wait set until taken
 
         async def handler(entity, gc, is_shutdown, work_tracker):
-            if is_shutdown or not entity.callback_group.beginning_execution(entity):
-                entity._executor_event = False  # not run (busy group, or stopping)
-                _wake(gc)
-                return
+            # counted as work before it looks at the shutdown flag: shutdown() sets the flag,
+            # then waits for the work to end, so a callback either runs before it returns or
+            # not at all (rclpy passes the flag as it was when the task was made)
             with work_tracker:
+                if (is_shutdown or self._is_shutdown
+                        or not entity.callback_group.beginning_execution(entity)):
+                    entity._executor_event = False  # not run (busy group, or stopping)
+                    _wake(gc)
+                    return
                 call_coroutine = take_from_wait_list(entity)
                 entity._executor_event = False  # may join the wait set again
                 _wake(gc)

@@ -24,7 +24,8 @@ from katana_common.executor import (
     runs_inline,
 )
 from katana_common.futures import wait_for_future
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from katana_common.testing import wait_until
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.context import Context
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import Executor, TimeoutException
@@ -224,6 +225,44 @@ def test_a_callback_started_as_the_executor_shuts_down_ends_cleanly(ours):
             assert "destruction was requested" in str(task.exception())
             assert not group.can_execute(subscription)
             group.ending_execution(subscription)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def test_shutdown_waits_for_running_callbacks_and_drops_queued_ones():
+    """rclpy's shutdown() returns while callbacks still run (it never waits, despite its
+    docstring) and lets queued ones start afterwards; ours waits for the running one and
+    drops the queued one, so no callback outlives it to meet a destroyed node."""
+    context = Context()
+    rclpy.init(context=context)
+    with pytest.warns(UserWarning, match="single thread"):  # one worker: the second queues
+        executor = MultiThreadedExecutor(num_threads=1, context=context)
+    node = rclpy.create_node("executor_drain_probe", context=context)
+    started, ended = threading.Event(), []
+
+    def slow(message: Int32) -> None:
+        started.set()
+        time.sleep(0.3)
+        ended.append(message.data)
+
+    node.create_subscription(Int32, "numbers", slow, 10,
+                             callback_group=ReentrantCallbackGroup())
+    publisher = node.create_publisher(Int32, "numbers", 10)
+    executor.add_node(node)
+    spin = BackgroundSpin(executor)
+    try:
+        publisher.publish(Int32(data=1))
+        assert started.wait(5.0)
+        publisher.publish(Int32(data=2))  # queued behind the one worker
+        assert wait_until(lambda: sum(  # both handed to the pool: one runs, one waits
+            1 for t, entity, _ in executor._tasks if entity is not None and not t.done()) >= 2,
+            5.0)
+        spin.stop(5.0)
+        assert executor.shutdown(timeout_sec=5.0)
+        assert ended == [1]  # the running one ended before shutdown returned
+        time.sleep(0.5)
+        assert ended == [1]  # the queued one never ran
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=context)
