@@ -53,7 +53,7 @@ PARAMS = (
     Param("gripper_tolerance", 0.01, "gripper position tolerance, rad", low=0.001, high=0.2,
           live=True),
     Param("gripper_stall_time", 0.2, "fingers still this long short of the goal = holding, s "
-          "(0.2: five polls at the default poll_rate)",
+          "(0.2: two or three polls on the arm, 80 ms each with the status read)",
           low=0.1, high=10.0, live=True),
 )
 

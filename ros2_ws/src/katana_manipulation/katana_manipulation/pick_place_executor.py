@@ -164,7 +164,8 @@ class PickPlaceExecutor(Node):
                 return self._finish(goal_handle, g, out)
             # the same joint_states_after as the task before: no reset since, the arm stands
             # where that task left it
-            if after_ns <= self._reset_ns and not self.port.settled():
+            if (after_ns <= self._reset_ns and not self.port.settled()
+                    and not self.stopping.is_set()):
                 self.get_logger().info(
                     f"joint_states do not show the arm where the last task left it after "
                     f"{SETTLE_WAIT_S:g} s: planning from where they show it")

@@ -109,29 +109,29 @@ class RosArmPort:
         late, from before the last motion ended, would change its plan and whether it opens
         the fingers first: runs would follow the callbacks' timing. False when the bound ran
         out (the arm is elsewhere: the task starts from where it is) or the node stops."""
-        n = self.node
         if self.commanded is None and self.gripped is None:
             return True  # nothing known to hold
-        deadline = time.monotonic() + timeout_s
-        while not n.stopping.is_set():
-            with n.state_lock:
-                latest = n.latest_joints
-            if latest is not None and pp.holds_where_sent(latest, self.commanded, self.gripped):
-                return True
-            if time.monotonic() >= deadline:
-                return False
-            n.stopping.wait(0.01)
-        return False
+        return self._latest_when(
+            lambda joints, _ns: pp.holds_where_sent(joints, self.commanded, self.gripped),
+            timeout_s) is not None
 
     def joint_positions(self, stamped_after_ns: int = 0) -> dict[str, float] | None:
         """The latest joint positions, once a joint_states stamped at or after
         `stamped_after_ns` has come; None after server_timeout_s or when the node stops."""
+        return self._latest_when(lambda _joints, ns: ns >= stamped_after_ns,
+                                 self.node.params["server_timeout_s"])
+
+    def _latest_when(self, accept, timeout_s: float) -> dict[str, float] | None:
+        """The latest joint positions once ``accept(joints, stamp_ns)`` holds for them; None
+        after ``timeout_s`` (wall time) or when the node stops."""
         n = self.node
-        deadline = time.monotonic() + n.params["server_timeout_s"]
-        while time.monotonic() < deadline and not n.stopping.is_set():
+        deadline = time.monotonic() + timeout_s
+        while not n.stopping.is_set():
             with n.state_lock:
                 latest, stamp_ns = n.latest_joints, n.latest_joints_ns
-            if latest is not None and stamp_ns >= stamped_after_ns:
+            if latest is not None and accept(latest, stamp_ns):
                 return dict(latest)
+            if time.monotonic() >= deadline:
+                return None
             n.stopping.wait(0.01)
         return None
