@@ -186,9 +186,9 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
         async def handler(entity, gc, is_shutdown, work_tracker):
             # counted as work before it looks at the shutdown flag: shutdown() sets the flag,
             # then waits for the work to end, so a callback either runs before it returns or
-            # not at all (rclpy passes the flag as it was when the task was made)
+            # not at all (the `is_shutdown` rclpy passes is the flag when the task was made)
             with work_tracker:
-                if (is_shutdown or self._is_shutdown
+                if (self._is_shutdown
                         or not entity.callback_group.beginning_execution(entity)):
                     entity._executor_event = False  # not run (busy group, or stopping)
                     _wake(gc)

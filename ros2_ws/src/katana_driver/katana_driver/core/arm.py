@@ -307,7 +307,7 @@ class ArmWorker(TrajectoryStreaming):
                 self._cond.notify_all()
 
     def _open_link(self) -> bool:
-        self._queue_empty_after = None  # a controller met again may hold anything
+        self._queue_emptied(None)  # a controller met again may hold anything
         try:
             self.transport.open()
             self.client.echo()
@@ -536,7 +536,7 @@ class ArmWorker(TrajectoryStreaming):
         return self._status
 
     def _on_collision(self) -> None:
-        self._queue_empty_after = None  # stopped mid-trajectory: segments may be left
+        self._queue_emptied(None)  # stopped mid-trajectory: segments may be left
         axes = [i + 1 for i, s in enumerate(self._status) if s == p.STATUS_COLLISION]
         err = None
         try:
@@ -552,7 +552,6 @@ class ArmWorker(TrajectoryStreaming):
     def _link_lost(self, message: str) -> None:
         self.transport.close()
         self.connected = False
-        self._queue_empty_after = None
         self.link_losses += 1
         self._freeze_on_connect = True
         self.link_error = f"lost connection to the Katana controller ({message})"
