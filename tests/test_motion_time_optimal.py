@@ -14,7 +14,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from katana_description import models as m
 from katana_manipulation.core import pick_place as pp
-from katana_manipulation.core.time_optimal import minimum_time, time_optimal
+from katana_manipulation.core.time_optimal import (
+    minimum_time,
+    reachable_speeds_reference,
+    time_optimal,
+)
+from katana_manipulation.core.time_optimal_kernels import reachable_speeds
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 from planned_requests import reachable_requests  # noqa: E402
@@ -104,6 +109,26 @@ def test_the_optimal_motion_keeps_the_limits_and_no_joint_could_be_quicker(point
     assert np.all(np.abs(np.diff(q, axis=0)) / 0.01 <= SPEED * 1.01)
     assert np.all(np.abs(np.diff(q, 2, axis=0)) / 0.01**2 <= ACCEL * 1.05)
     assert prof.duration >= _per_joint_bound(points, SPEED, ACCEL) * 0.995
+
+
+_passes_input = st.integers(1, 40).flatmap(lambda n: st.tuples(
+    st.lists(st.lists(st.one_of(st.floats(-4.0, 4.0), st.sampled_from([0.0, 1e-9, 2e-9, -0.0])),
+                      min_size=10, max_size=10), min_size=n, max_size=n),
+    st.lists(st.lists(st.floats(0.0, 5.0), min_size=10, max_size=10), min_size=n, max_size=n),
+    st.lists(st.lists(st.booleans(), min_size=10, max_size=10), min_size=n, max_size=n),
+    st.lists(st.one_of(st.floats(0.0, 50.0), st.sampled_from([math.inf, -0.0])), min_size=n + 1,
+             max_size=n + 1)))
+
+
+@settings(max_examples=200, deadline=None)
+@given(arrays=_passes_input)
+def test_the_compiled_passes_equal_their_reference_bit_for_bit(arrays):
+    """The compiled reachability passes against their plain-Python twin: the same float64
+    bits (a -0.0 too), whatever the rows, bounds and unbounded points."""
+    g, step, moving, xmax = (np.array(a, dtype=t) for a, t in
+                             zip(arrays, (float, float, bool, float), strict=True))
+    fast = reachable_speeds(g, step, moving, xmax, 1e-9)
+    assert fast.tobytes() == reachable_speeds_reference(g, step, moving, xmax).tobytes()
 
 
 def _motion(segments) -> tuple[float, float]:

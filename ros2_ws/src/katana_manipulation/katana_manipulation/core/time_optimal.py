@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
+from katana_manipulation.core.time_optimal_kernels import reachable_speeds
+
 #: grid intervals per path segment (between waypoints); the time converges as 1/n
 GRID_PER_SEGMENT = 60
 _TINY = 1e-9
@@ -118,31 +120,38 @@ def time_optimal(points: Sequence[Sequence[float]], vmax: Sequence[float],
         beta = np.where(moving, c / np.where(moving, b, 1.0), 0.0)
         step = 2.0 * ds[:, None] * np.where(moving, a / np.where(moving, np.abs(b), 1.0), 0.0)
     g = 1.0 - 2.0 * ds[:, None] * beta
-    # x_{i+1} = x_i + 2 ds u_i, u_i in [max_j(-beta_j x_i - r_j), min_j(-beta_j x_i + r_j)]
-    # over the moving rows j: x_{i+1} in [max_j(g_j x_i - step_j), min_j(g_j x_i + step_j)].
-    # Plain Python over the few rows of each interval: numpy's per-call cost would dominate.
-    rows = [[(gj, sj) for gj, sj, mj in zip(gi, si, mi, strict=True) if mj]
-            for gi, si, mi in zip(g.tolist(), step.tolist(), moving.tolist(), strict=True)]
-    # backward: the largest x at s_i from which x_{i+1} <= k[i+1] is still reachable
-    k = xmax.tolist()
-    for i in range(len(s) - 2, -1, -1):
-        for gj, sj in rows[i]:
-            if gj > _TINY:
-                k[i] = min(k[i], (k[i + 1] + sj) / gj)
-        k[i] = max(k[i], 0.0)
-    # forward: as fast as the limits and the controllable set allow
-    x = [0.0] * len(s)
-    for i in range(len(s) - 1):
-        nxt = k[i + 1]
-        for gj, sj in rows[i]:
-            nxt = min(nxt, gj * x[i] + sj)
-        x[i + 1] = max(0.0, nxt)
-    x = np.array(x)
+    x = reachable_speeds(g, step, moving, xmax, _TINY)
     sdot = np.sqrt(x)
     with np.errstate(divide="ignore"):
         dt = np.where(sdot[:-1] + sdot[1:] > 0.0, 2.0 * ds / (sdot[:-1] + sdot[1:]), np.inf)
     t = np.concatenate([[0.0], np.cumsum(dt)])
     return Profile(s, sdot, t, knots, path)
+
+
+def reachable_speeds_reference(g: np.ndarray, step: np.ndarray, moving: np.ndarray,
+                               xmax: np.ndarray, tiny: float = _TINY) -> np.ndarray:
+    """The reachability passes in plain Python: the reference twin of the compiled
+    `time_optimal_kernels.reachable_speeds`, which must give bit-equal results.
+
+    x_{i+1} = x_i + 2 ds u_i with u_i in [max_j(-beta_j x_i - r_j), min_j(-beta_j x_i + r_j)]
+    over the moving rows j: x_{i+1} in [max_j(g_j x_i - step_j), min_j(g_j x_i + step_j)]."""
+    rows = [[(gj, sj) for gj, sj, mj in zip(gi, si, mi, strict=True) if mj]
+            for gi, si, mi in zip(g.tolist(), step.tolist(), moving.tolist(), strict=True)]
+    # backward: the largest x at s_i from which x_{i+1} <= k[i+1] is still reachable
+    k = xmax.tolist()
+    for i in range(len(k) - 2, -1, -1):
+        for gj, sj in rows[i]:
+            if gj > tiny:
+                k[i] = min(k[i], (k[i + 1] + sj) / gj)
+        k[i] = max(k[i], 0.0)
+    # forward: as fast as the limits and the controllable set allow
+    x = [0.0] * len(k)
+    for i in range(len(k) - 1):
+        nxt = k[i + 1]
+        for gj, sj in rows[i]:
+            nxt = min(nxt, gj * x[i] + sj)
+        x[i + 1] = max(0.0, nxt)
+    return np.array(x)
 
 
 def minimum_time(points: Sequence[Sequence[float]], vmax: Sequence[float],
