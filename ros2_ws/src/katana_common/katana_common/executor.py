@@ -19,11 +19,13 @@ goal ended in about one goal of three, and a pick-and-place took 0.6-0.9 s where
 
 The wait loop hands out what rclpy's does, in the same order (test_executor.py holds it to
 rclpy's own on the same pending work), at less cost per round. In the loop bench's graph (about
-130 rounds and 140 callbacks per experiment) rclpy's loop cost the spinning thread about 1 ms
-per round, this one about 0.4 ms. The QoS event handlers that report an incompatible QoS or type
-(two per publisher and subscription: 78 of the graph's ~220 entities) join the wait set every
-INCOMPATIBILITY_POLL_S instead of every round: they report a misconfigured peer, which a quarter
-of a second does not change, and the wait is cut short for the next poll.
+130 rounds and 130 callbacks per experiment) rclpy's loop cost the spinning thread about 1 ms
+per round. Entities that serve tools rather than the graph's own traffic join the wait set every
+POLL_S instead of every round, the wait cut short for the next poll (`polled`): the QoS event
+handlers that report an incompatible QoS or type (two per publisher and subscription) and every
+node's parameter and type-description services (seven per node: 56 of the ~110 entities a round
+of the loop's graph would otherwise hold). A misconfigured peer is reported, and a `ros2 param`
+or parameter client's request answered, at most POLL_S later.
 
 A future's done-callbacks are executor tasks in rclpy (the executor that completed the future
 queues them): a thread waiting for an answer is woken only after one more round of the wait
@@ -64,13 +66,15 @@ from rclpy.executors import (
 )
 from rclpy.executors import MultiThreadedExecutor as _RclpyMultiThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.parameter_service import ParameterService
 from rclpy.task import Future, Task
+from rclpy.type_description_service import TypeDescriptionService
 from rclpy.utilities import timeout_sec_to_nsec
 
 _INLINE = "_katana_runs_inline"
 
-#: how often the QoS events that report an incompatible peer join the wait set
-INCOMPATIBILITY_POLL_S = 0.25
+#: how often the entities that serve tools (`polled`) join the wait set
+POLL_S = 0.1
 
 # (enum type, value): pybind's event enums compare equal across the two types by value
 _SUB, _PUB = QoSSubscriptionEventType, QoSPublisherEventType
@@ -87,6 +91,19 @@ def reports_incompatibility(waitable: Any) -> bool:
     every publisher and subscription these, and they report a misconfigured peer."""
     return isinstance(waitable, EventHandler) and (
         type(waitable.event_type), int(waitable.event_type)) in _INCOMPATIBILITY_EVENTS
+
+
+def serves_tools(service: Any) -> bool:
+    """Whether `service` is one rclpy gives every node for tools: its parameter services
+    (`ros2 param`, parameter clients) and its type-description service."""
+    owner = getattr(getattr(service, "callback", None), "__self__", None)
+    return isinstance(owner, (ParameterService, TypeDescriptionService))
+
+
+def polled(entity: Any) -> bool:
+    """Whether `entity` joins the executor's wait set only every POLL_S: a QoS event handler
+    that reports an incompatible peer, or a service that serves tools."""
+    return reports_incompatibility(entity) or serves_tools(entity)
 
 
 def runs_inline(callback: Callable) -> Callable:
@@ -149,7 +166,7 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
         self._subscription_of: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
         # node -> its _Entities; only the spinning thread uses it
         self._entities_of: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-        self._next_incompatibility_poll_ns = 0
+        self._next_poll_ns = 0
 
     def shutdown(self, timeout_sec: float | None = None) -> bool:
         """Stop executing callbacks and wait for the running ones to end, as rclpy documents
@@ -261,9 +278,9 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
                                    if not t[0].done() and not t[0].cancelled()]
 
             now_ns = time.monotonic_ns()
-            poll_incompatibility = now_ns >= self._next_incompatibility_poll_ns
-            if poll_incompatibility:
-                self._next_incompatibility_poll_ns = now_ns + int(INCOMPATIBILITY_POLL_S * 1e9)
+            poll = now_ns >= self._next_poll_ns
+            if poll:
+                self._next_poll_ns = now_ns + int(POLL_S * 1e9)
             allowed = _GroupVerdicts()
             of_node = [self._entities(node) for node in nodes_to_use]
             subscriptions, timers, clients, services, waitables = [], [], [], [], []
@@ -272,15 +289,17 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
                 subscriptions += [e for e in entities.subscriptions if allowed(e[0])]
                 timers += [e for e in entities.timers if allowed(e[0])]
                 clients += [e for e in entities.clients if allowed(e[0])]
-                services += [e for e in entities.services if allowed(e[0])]
+                services += [e for e in (entities.services if poll
+                                         else entities.unpolled_services) if allowed(e[0])]
                 for entry in entities.guards:
                     gc = entry[0]
                     if allowed(gc):
                         if gc._executor_triggered:  # triggered but not handled: again
                             gc.trigger()
                         guards.append(entry)
-                waitables += [e for e in entities.waitables
-                              if (poll_incompatibility or not e[3]) and self.can_execute(e[0])]
+                waitables += [e for e in (entities.waitables if poll
+                                          else entities.unpolled_waitables)
+                              if self.can_execute(e[0])]
             guards += [_entry(gc) for gc in (self._guard, self._sigint_gc)]
 
             entered: list = []  # handles in use while the wait set holds them
@@ -315,9 +334,8 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
                 wait_ns = timeout_ns
                 if deadline_ns is not None:
                     wait_ns = max(0, deadline_ns - time.monotonic_ns())
-                if not poll_incompatibility and wait_ns != 0:  # back for the next poll
-                    until_poll_ns = max(0, self._next_incompatibility_poll_ns
-                                        - time.monotonic_ns())
+                if not poll and wait_ns != 0:  # back for the next poll
+                    until_poll_ns = max(0, self._next_poll_ns - time.monotonic_ns())
                     wait_ns = until_poll_ns if wait_ns < 0 else min(wait_ns, until_poll_ns)
                 wait_set.wait(wait_ns)
                 if self._is_shutdown:
@@ -380,11 +398,11 @@ class MultiThreadedExecutor(_RclpyMultiThreadedExecutor):
     def _entities(self, node: Any) -> _Entities:
         """`node`'s entities as the wait loop uses them: the same as last round while the
         node's lists hold the same entities (the comparison of identities is C-speed)."""
-        lists = (tuple(node.subscriptions), tuple(node.timers), tuple(node.clients),
-                 tuple(node.services), tuple(node.guards), tuple(node.waitables))
+        lists = _lists_of(node)
         entities = self._entities_of.get(node)
         if entities is None or entities.lists != lists:
-            entities = self._entities_of[node] = _Entities(lists)
+            entities = self._entities_of[node] = _Entities(
+                tuple(list(kind) for kind in lists))
         return entities
 
     def _hand_out(self, node, entries: list, ready: set, take: Callable):
@@ -416,28 +434,42 @@ def _entry(entity: Any) -> tuple | None:
         return None
 
 
+def _lists_of(node: Any) -> tuple:
+    """The node's lists of subscriptions, timers, clients, services, guard conditions and
+    waitables: rclpy's own lists where its Node has them (its properties are generators,
+    which cost the wait loop a Python step per entity and round), else copies."""
+    try:
+        return (node._subscriptions, node._timers, node._clients, node._services,
+                node._guards, node._Node__waitables)
+    except AttributeError:
+        return (list(node.subscriptions), list(node.timers), list(node.clients),
+                list(node.services), list(node.guards), list(node.waitables))
+
+
 def _waitable_entry(waitable: Any) -> tuple:
-    """(waitable, itself, its entity counts as rclpy's WaitSet takes them, whether it reports
-    an incompatible peer); all fixed for its life."""
+    """(waitable, itself, its entity counts as rclpy's WaitSet takes them); all fixed for its
+    life."""
     n = waitable.get_num_entities()
     return (waitable, waitable, (n.num_subscriptions, n.num_guard_conditions, n.num_timers,
-                                 n.num_clients, n.num_services, n.num_events),
-            reports_incompatibility(waitable))
+                                 n.num_clients, n.num_services, n.num_events))
 
 
 class _Entities:
     """One node's entities as the wait loop uses them, made when its lists change: entries of
-    (entity, handle, pointer) per kind, and of `_waitable_entry` for its waitables. An
-    entity destroyed while it was listed is left out (rclpy leaves it out of the wait set)."""
+    (entity, handle, pointer) per kind, and of `_waitable_entry` for its waitables, each also
+    without the `polled` ones. An entity destroyed while it was listed is left out (rclpy
+    leaves it out of the wait set)."""
 
     __slots__ = ("lists", "subscriptions", "timers", "clients", "services", "guards",
-                 "waitables")
+                 "waitables", "unpolled_services", "unpolled_waitables")
 
     def __init__(self, lists: tuple) -> None:
         self.lists = lists
         self.subscriptions, self.timers, self.clients, self.services, self.guards = (
             [e for e in map(_entry, kind) if e is not None] for kind in lists[:5])
         self.waitables = [_waitable_entry(w) for w in lists[5]]
+        self.unpolled_services = [e for e in self.services if not polled(e[0])]
+        self.unpolled_waitables = [e for e in self.waitables if not polled(e[0])]
 
 
 class _GroupVerdicts:

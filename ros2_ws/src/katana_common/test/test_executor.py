@@ -17,11 +17,12 @@ import rclpy
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from katana_common.executor import (
-    INCOMPATIBILITY_POLL_S,
+    POLL_S,
     BackgroundSpin,
     MultiThreadedExecutor,
     reports_incompatibility,
     runs_inline,
+    serves_tools,
 )
 from katana_common.futures import wait_for_future
 from katana_common.testing import wait_until
@@ -30,6 +31,7 @@ from rclpy.context import Context
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import Executor, TimeoutException
 from rclpy.executors import MultiThreadedExecutor as RclpyMultiThreadedExecutor
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from std_msgs.msg import Int32
@@ -297,7 +299,7 @@ class Twin:
 
     def handed_out(self, wait_loop) -> list:
         """Every entity `wait_loop` hands out without waiting, then the executor as before."""
-        self.executor._next_incompatibility_poll_ns = 0  # a round that polls them all
+        self.executor._next_poll_ns = 0  # a round that polls them all
         entities = []
         try:
             for _handler, entity, _node in wait_loop(self.executor, timeout_sec=0):
@@ -338,7 +340,7 @@ def test_the_wait_loop_hands_out_what_rclpys_does(twin, published, request, guar
     subscription added after the fast loop has seen the node (its entities are kept until
     the node's lists change)."""
     if added:
-        twin.executor._next_incompatibility_poll_ns = 0
+        twin.executor._next_poll_ns = 0
         twin.handed_out(MultiThreadedExecutor._wait_for_ready_callbacks)  # the node seen
         topic = f"added_{len(twin.added)}"
         twin.added.append(twin.node.create_subscription(Int32, topic, lambda _m: None, 10))
@@ -379,7 +381,7 @@ def test_the_wait_loop_hands_out_what_rclpys_does(twin, published, request, guar
 
 def test_an_incompatible_peer_is_still_reported():
     """QoS events that report an incompatible peer join the wait set every
-    INCOMPATIBILITY_POLL_S, not every round: the report comes, a poll later at most."""
+    POLL_S, not every round: the report comes, a poll later at most."""
     context = Context()
     rclpy.init(context=context)
     executor = MultiThreadedExecutor(num_threads=WORKERS, context=context)
@@ -396,10 +398,55 @@ def test_an_incompatible_peer_is_still_reported():
     try:
         talker.create_publisher(
             Int32, "numbers", QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
-        assert reported.wait(2.0 + INCOMPATIBILITY_POLL_S)
+        assert reported.wait(2.0 + POLL_S)
     finally:
         spin.stop()
         executor.shutdown(timeout_sec=2.0)
         talker.destroy_node()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+#: the services every rclpy node serves tools with (ROS 2's parameter services and the
+#: type-description service), by name
+TOOL_SERVICES = ("describe_parameters", "get_parameters", "get_parameter_types",
+                 "list_parameters", "set_parameters", "set_parameters_atomically",
+                 "get_type_description")
+
+
+def test_tool_services_are_polled_and_still_answer():
+    """A node's parameter and type-description services, and none it made itself, join the
+    wait set only in polling rounds; a parameter client's request is still answered (its
+    service waited a poll at most), and the node's own service in any round."""
+    context = Context()
+    rclpy.init(context=context)
+    executor = MultiThreadedExecutor(num_threads=WORKERS, context=context)
+    node = rclpy.create_node("executor_params", context=context)
+    node.declare_parameter("speed", 0.5)
+    own = node.create_service(Trigger, "own_trigger",
+                              lambda _r, answer: setattr(answer, "success", True) or answer)
+    assert sorted(s.srv_name.rsplit("/", 1)[1] for s in node.services if serves_tools(s)) == \
+        sorted(TOOL_SERVICES)
+    assert not serves_tools(own)
+    entities = executor._entities(node)
+    assert [e[0] for e in entities.unpolled_services] == [own]
+    caller = rclpy.create_node("executor_param_caller", context=context)
+    parameters = AsyncParameterClient(caller, "executor_params")
+    trigger = caller.create_client(Trigger, "own_trigger")
+    executor.add_node(node)
+    executor.add_node(caller)
+    spin = BackgroundSpin(executor, slice_s=SPIN_SLICE_S)
+    try:
+        assert parameters.wait_for_services(timeout_sec=5.0)
+        for _ in range(3):
+            answer = wait_for_future(parameters.get_parameters(["speed"]), 2.0 + POLL_S,
+                                     "get_parameters")
+            assert answer is not None and answer.values[0].double_value == 0.5
+            reply = wait_for_future(trigger.call_async(Trigger.Request()), 2.0, "own_trigger")
+            assert reply is not None and reply.success
+    finally:
+        spin.stop()
+        executor.shutdown(timeout_sec=2.0)
+        caller.destroy_node()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
