@@ -9,6 +9,7 @@ so each test also shows the loop it closes."""
 from __future__ import annotations
 
 import collections
+import contextlib
 import threading
 import time
 
@@ -379,32 +380,48 @@ def test_the_wait_loop_hands_out_what_rclpys_does(twin, published, request, guar
         assert any(reports_incompatibility(e) for e in first)
 
 
-def test_an_incompatible_peer_is_still_reported():
-    """QoS events that report an incompatible peer join the wait set every
-    POLL_S, not every round: the report comes, a poll later at most."""
+@contextlib.contextmanager
+def _spun(*names: str):
+    """Nodes of these names in a context of their own, on this module's executor spun in the
+    background once the block has added what it needs; all closed after the block."""
     context = Context()
     rclpy.init(context=context)
     executor = MultiThreadedExecutor(num_threads=WORKERS, context=context)
-    node = rclpy.create_node("executor_listener", context=context)
-    reported = threading.Event()
-    node.create_subscription(
-        Int32, "numbers", lambda _m: None, 10,
-        event_callbacks=SubscriptionEventCallbacks(incompatible_qos=lambda _e: reported.set()))
-    handlers = [h for h in node.waitables if reports_incompatibility(h)]
-    assert handlers  # the subscription's handler is one of the polled kind
-    executor.add_node(node)
-    spin = BackgroundSpin(executor, slice_s=SPIN_SLICE_S)
-    talker = rclpy.create_node("executor_talker", context=context)
+    nodes = [rclpy.create_node(name, context=context) for name in names]
+    spin = None
+
+    def start() -> None:
+        nonlocal spin
+        for node in nodes:
+            executor.add_node(node)
+        spin = BackgroundSpin(executor, slice_s=SPIN_SLICE_S)
+
     try:
+        yield executor, nodes, start
+    finally:
+        if spin is not None:
+            spin.stop()
+        executor.shutdown(timeout_sec=2.0)
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def test_an_incompatible_peer_is_still_reported():
+    """QoS events that report an incompatible peer join the wait set every
+    POLL_S, not every round: the report comes, a poll later at most."""
+    with _spun("executor_listener", "executor_talker") as (_executor, (node, talker), start):
+        reported = threading.Event()
+        node.create_subscription(
+            Int32, "numbers", lambda _m: None, 10,
+            event_callbacks=SubscriptionEventCallbacks(
+                incompatible_qos=lambda _e: reported.set()))
+        handlers = [h for h in node.waitables if reports_incompatibility(h)]
+        assert handlers  # the subscription's handler is one of the polled kind
+        start()
         talker.create_publisher(
             Int32, "numbers", QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         assert reported.wait(2.0 + POLL_S)
-    finally:
-        spin.stop()
-        executor.shutdown(timeout_sec=2.0)
-        talker.destroy_node()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
 
 
 #: the services every rclpy node serves tools with (ROS 2's parameter services and the
@@ -418,25 +435,18 @@ def test_tool_services_are_polled_and_still_answer():
     """A node's parameter and type-description services, and none it made itself, join the
     wait set only in polling rounds; a parameter client's request is still answered (its
     service waited a poll at most), and the node's own service in any round."""
-    context = Context()
-    rclpy.init(context=context)
-    executor = MultiThreadedExecutor(num_threads=WORKERS, context=context)
-    node = rclpy.create_node("executor_params", context=context)
-    node.declare_parameter("speed", 0.5)
-    own = node.create_service(Trigger, "own_trigger",
-                              lambda _r, answer: setattr(answer, "success", True) or answer)
-    assert sorted(s.srv_name.rsplit("/", 1)[1] for s in node.services if serves_tools(s)) == \
-        sorted(TOOL_SERVICES)
-    assert not serves_tools(own)
-    entities = executor._entities(node)
-    assert [e[0] for e in entities.unpolled_services] == [own]
-    caller = rclpy.create_node("executor_param_caller", context=context)
-    parameters = AsyncParameterClient(caller, "executor_params")
-    trigger = caller.create_client(Trigger, "own_trigger")
-    executor.add_node(node)
-    executor.add_node(caller)
-    spin = BackgroundSpin(executor, slice_s=SPIN_SLICE_S)
-    try:
+    with _spun("executor_params", "executor_param_caller") as (executor, (node, caller),
+                                                                start):
+        node.declare_parameter("speed", 0.5)
+        own = node.create_service(Trigger, "own_trigger",
+                                  lambda _r, answer: setattr(answer, "success", True) or answer)
+        assert sorted(s.srv_name.rsplit("/", 1)[1] for s in node.services
+                      if serves_tools(s)) == sorted(TOOL_SERVICES)
+        assert not serves_tools(own)
+        assert [e[0] for e in executor._entities(node).unpolled_services] == [own]
+        parameters = AsyncParameterClient(caller, "executor_params")
+        trigger = caller.create_client(Trigger, "own_trigger")
+        start()
         assert parameters.wait_for_services(timeout_sec=5.0)
         for _ in range(3):
             answer = wait_for_future(parameters.get_parameters(["speed"]), 2.0 + POLL_S,
@@ -444,9 +454,3 @@ def test_tool_services_are_polled_and_still_answer():
             assert answer is not None and answer.values[0].double_value == 0.5
             reply = wait_for_future(trigger.call_async(Trigger.Request()), 2.0, "own_trigger")
             assert reply is not None and reply.success
-    finally:
-        spin.stop()
-        executor.shutdown(timeout_sec=2.0)
-        caller.destroy_node()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
