@@ -2,8 +2,8 @@
 
 Why compiled: the two passes are a recurrence along the path grid (each x depends on the one
 before), so NumPy cannot vectorise them, and in plain Python they cost most of a pick-and-place
-plan (about 20 ms of the loop's ~0.37 s per experiment on a 2-core Xeon). The reference twin
-is `time_optimal.reachable_speeds_reference`; the tests hold the two to bit-equal results.
+plan (one took 29 ms with them, 12 ms compiled: docs/DESIGN.md). The reference twin is
+`time_optimal.reachable_speeds_reference`; the tests hold the two to bit-equal results.
 
 Same results, not approximately the same: each value is made by the reference's float64
 operations in the same order ((k + step) / g and g * x + step; numba contracts no multiply-add
