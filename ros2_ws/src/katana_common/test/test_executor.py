@@ -21,6 +21,7 @@ from katana_common.executor import (
     POLL_S,
     BackgroundSpin,
     MultiThreadedExecutor,
+    polled,
     reports_incompatibility,
     runs_inline,
     serves_tools,
@@ -383,24 +384,18 @@ def test_the_wait_loop_hands_out_what_rclpys_does(twin, published, request, guar
 @contextlib.contextmanager
 def _spun(*names: str):
     """Nodes of these names in a context of their own, on this module's executor spun in the
-    background once the block has added what it needs; all closed after the block."""
+    background (what they make later joins its wait set); all closed after the block."""
     context = Context()
     rclpy.init(context=context)
     executor = MultiThreadedExecutor(num_threads=WORKERS, context=context)
     nodes = [rclpy.create_node(name, context=context) for name in names]
-    spin = None
-
-    def start() -> None:
-        nonlocal spin
-        for node in nodes:
-            executor.add_node(node)
-        spin = BackgroundSpin(executor, slice_s=SPIN_SLICE_S)
-
+    for node in nodes:
+        executor.add_node(node)
+    spin = BackgroundSpin(executor, slice_s=SPIN_SLICE_S)
     try:
-        yield executor, nodes, start
+        yield nodes
     finally:
-        if spin is not None:
-            spin.stop()
+        spin.stop()
         executor.shutdown(timeout_sec=2.0)
         for node in nodes:
             node.destroy_node()
@@ -410,15 +405,14 @@ def _spun(*names: str):
 def test_an_incompatible_peer_is_still_reported():
     """QoS events that report an incompatible peer join the wait set every
     POLL_S, not every round: the report comes, a poll later at most."""
-    with _spun("executor_listener", "executor_talker") as (_executor, (node, talker), start):
+    with _spun("executor_listener", "executor_talker") as (node, talker):
         reported = threading.Event()
         node.create_subscription(
             Int32, "numbers", lambda _m: None, 10,
             event_callbacks=SubscriptionEventCallbacks(
                 incompatible_qos=lambda _e: reported.set()))
         handlers = [h for h in node.waitables if reports_incompatibility(h)]
-        assert handlers  # the subscription's handler is one of the polled kind
-        start()
+        assert handlers and all(polled(h) for h in handlers)
         talker.create_publisher(
             Int32, "numbers", QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         assert reported.wait(2.0 + POLL_S)
@@ -435,18 +429,15 @@ def test_tool_services_are_polled_and_still_answer():
     """A node's parameter and type-description services, and none it made itself, join the
     wait set only in polling rounds; a parameter client's request is still answered (its
     service waited a poll at most), and the node's own service in any round."""
-    with _spun("executor_params", "executor_param_caller") as (executor, (node, caller),
-                                                                start):
+    with _spun("executor_params", "executor_param_caller") as (node, caller):
         node.declare_parameter("speed", 0.5)
         own = node.create_service(Trigger, "own_trigger",
                                   lambda _r, answer: setattr(answer, "success", True) or answer)
         assert sorted(s.srv_name.rsplit("/", 1)[1] for s in node.services
                       if serves_tools(s)) == sorted(TOOL_SERVICES)
-        assert not serves_tools(own)
-        assert [e[0] for e in executor._entities(node).unpolled_services] == [own]
+        assert [s for s in node.services if not polled(s)] == [own]
         parameters = AsyncParameterClient(caller, "executor_params")
         trigger = caller.create_client(Trigger, "own_trigger")
-        start()
         assert parameters.wait_for_services(timeout_sec=5.0)
         for _ in range(3):
             answer = wait_for_future(parameters.get_parameters(["speed"]), 2.0 + POLL_S,
