@@ -11,11 +11,17 @@ Shutdown: rclpy's own signal handler would shut the context down under running c
 SIGTERM only set an event. Then, in this order and while the context is still valid: each
 node's `stop()` (if it has one: it ends the node's long waits and threads), the executor, the
 nodes, the context. Bounded: after SHUTDOWN_LIMIT_S the process says what is still busy and
-exits, so a stuck callback cannot keep a launch waiting for its SIGKILL.
+exits, so a stuck callback cannot keep a launch waiting for its SIGKILL. That watchdog is a
+Python thread, which a thread holding the GIL in a C call that never returns keeps from running;
+faulthandler's watchdog needs no GIL: STACK_DUMP_GRACE_S later it prints every thread's stack
+and exits 1. faulthandler is on in every process that spins nodes, so SIGABRT (what
+katana_common.testing.stop_process sends a process that outlives its signal) prints the stacks
+too.
 """
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import re
 import signal
@@ -42,6 +48,8 @@ EXIT_INVALID_CONFIGURATION = 2
 SHUTDOWN_LIMIT_S = 1.8
 #: the executor thread checks for a stop between slices of this many seconds of waiting
 SPIN_SLICE_S = 0.05
+#: faulthandler's watchdog (which needs no GIL) fires this long after the Python one, s
+STACK_DUMP_GRACE_S = 1.0
 
 
 def run_node(
@@ -104,6 +112,7 @@ def spin_nodes(
     """Spin `nodes` until SIGINT/SIGTERM, `until` is set or `duration_s` passes; then stop them
     (see the module docstring). Needs rclpy initialised with SignalHandlerOptions.NO."""
     stop = stop or _stop_on_signals()
+    _dump_stacks_on_fatal_signals()
     executor = executor or MultiThreadedExecutor(num_threads=8)
     if len(nodes) > 1:  # one /clock subscription for the process (see shared_clock)
         clock = SharedClock()
@@ -140,6 +149,7 @@ def spin_nodes(
     watchdog = threading.Timer(limit_s, _give_up, args=(prog, limit_s))
     watchdog.daemon = True
     watchdog.start()
+    dumps = _dump_stacks_later(limit_s + STACK_DUMP_GRACE_S)
     give_up_at = time.monotonic() + limit_s
     for node in nodes:
         node_stop = getattr(node, "stop", None)
@@ -158,10 +168,32 @@ def spin_nodes(
         node.destroy_node()
     rclpy.try_shutdown()
     watchdog.cancel()
+    if dumps:
+        faulthandler.cancel_dump_traceback_later()
     if failures:
         print(f"{prog}: stopped by an error: {failures[0]!r}", file=sys.stderr)
         return EXIT_FAILURE
     return EXIT_OK
+
+
+def _dump_stacks_on_fatal_signals() -> None:
+    """faulthandler on the process's standard error (SIGABRT, SIGSEGV, ...: every thread's
+    stack), unless it is on already (pytest turns it on for its own file)."""
+    if not faulthandler.is_enabled():
+        try:
+            faulthandler.enable(file=sys.__stderr__)
+        except (AttributeError, ValueError, OSError):  # no standard error with a descriptor
+            pass
+
+
+def _dump_stacks_later(seconds: float) -> bool:
+    """faulthandler's watchdog: every thread's stack and exit 1 after `seconds`, even while a
+    thread holds the GIL; whether it is armed (it needs a standard error with a descriptor)."""
+    try:
+        faulthandler.dump_traceback_later(seconds, exit=True, file=sys.__stderr__)
+    except (AttributeError, ValueError, OSError):
+        return False
+    return True
 
 
 def _give_up(prog: str, limit_s: float) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import os
 import re
 import select
+import signal
 import subprocess
 import time
 from collections.abc import Callable, Iterator
@@ -90,19 +91,27 @@ def wait_for_output(stream, pattern: str, timeout_s: float) -> re.Match | None:
 
 
 def stop_process(proc: subprocess.Popen, sig: int, timeout_s: float = 30.0,
-                 ) -> tuple[float, str | None, str | None]:
-    """Send `sig` to `proc` and wait up to `timeout_s` for it to exit; kill it if it is still
-    running then (so that a stuck node never outlives its test). Returns the seconds from the
-    signal to the exit (or the kill) and the process's stdout and stderr (None where they were
-    not piped). A killed process has a negative returncode, for the caller's assertions."""
+                 dump_s: float = 5.0) -> tuple[float, str | None, str | None]:
+    """Send `sig` to `proc` and wait up to `timeout_s` for it to exit. A process still running
+    then gets SIGABRT, so that its stacks show why (every process that spins nodes prints them
+    on SIGABRT, katana_common.node_runner), and SIGKILL `dump_s` later if it is still there (a
+    stuck node never outlives its test). Returns the seconds from the signal to the exit (or
+    to the timeout) and the process's stdout and stderr (None where they were not piped). A process
+    ended this way has a negative returncode, for the caller's assertions."""
     start = time.monotonic()
     proc.send_signal(sig)
     try:
         proc.wait(timeout=timeout_s)
     except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-    seconds = time.monotonic() - start
+        seconds = time.monotonic() - start
+        proc.send_signal(signal.SIGABRT)
+        try:
+            proc.wait(timeout=dump_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    else:
+        seconds = time.monotonic() - start
     out, err = proc.communicate()
     return seconds, out, err
 

@@ -22,7 +22,13 @@ from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
 from katana_common.futures import Stopped, wait_for_future
 from katana_common.messages import duration_msg, time_msg, to_nanoseconds, to_seconds
-from katana_common.node_runner import EXIT_INVALID_CONFIGURATION, EXIT_OK
+from katana_common.node_runner import (
+    EXIT_FAILURE,
+    EXIT_INVALID_CONFIGURATION,
+    EXIT_OK,
+    SHUTDOWN_LIMIT_S,
+    STACK_DUMP_GRACE_S,
+)
 from katana_common.param_spec import Param
 from katana_common.params import ParameterError, declare_parameters
 from katana_common.testing import private_ros_env
@@ -240,6 +246,40 @@ def test_a_signal_stops_the_node_cleanly(sig):
     out, err = proc.communicate(timeout=10)
     assert proc.returncode == EXIT_OK, err
     assert "stopping" in out and "Traceback" not in err
+
+
+def test_a_node_process_prints_every_threads_stack_on_sigabrt():
+    """What katana_common.testing.stop_process sends a node that outlives its signal."""
+    proc = _start()
+    assert proc.stdout.readline().strip() == "ready"
+    proc.send_signal(signal.SIGABRT)
+    out, err = proc.communicate(timeout=10)
+    assert proc.returncode == -signal.SIGABRT
+    assert "Fatal Python error: Aborted" in err and "in spin_nodes" in err
+
+
+def test_a_stop_stuck_holding_the_gil_ends_the_process_with_every_stack():
+    """A C call that holds the GIL keeps the Python watchdog from running; faulthandler's
+    watchdog still ends the process (exit 1) and shows where it was stuck."""
+    stuck = NODE_SCRIPT.replace(
+        'print("stopping", flush=True)',
+        'print("stopping", flush=True)\n'
+        '        import ctypes\n'
+        '        ctypes.PyDLL(None).sleep(60)  # libc sleep(), the GIL held')
+    proc = subprocess.Popen([sys.executable, "-c", stuck], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=private_ros_env())
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        start = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+        took = time.monotonic() - start
+    finally:
+        proc.kill()  # a no-op once it has ended
+    assert proc.returncode == EXIT_FAILURE, err
+    assert "stopping" in out
+    assert "Timeout" in err and "in stop" in err  # faulthandler's dump, the stuck frame in it
+    assert took < SHUTDOWN_LIMIT_S + STACK_DUMP_GRACE_S + 5.0
 
 
 # -- messages and futures ---------------------------------------------------------------------

@@ -135,13 +135,32 @@ def test_stop_process_times_a_clean_exit_and_returns_its_output(sig):
     assert (out, err) == ("bye\n", "on stderr\n")
 
 
-def test_stop_process_kills_a_process_that_ignores_the_signal():
+def test_stop_process_aborts_a_process_that_ignores_the_signal_and_its_stacks_show_why():
+    """Past the timeout: SIGABRT, which faulthandler (on in every process that spins nodes)
+    answers with every thread's stack."""
+    proc = _python(
+        "import faulthandler, signal, time\n"
+        "faulthandler.enable()\n"
+        "signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+        "def stuck_here():\n"
+        "    print('ready', flush=True)\n"
+        "    time.sleep(60)\n"
+        "stuck_here()\n")
+    seconds, out, err = stop_process(proc, signal.SIGTERM, timeout_s=0.3)
+    assert proc.returncode == -signal.SIGABRT
+    assert 0.3 <= seconds < 5.0
+    assert out == ""
+    assert "Fatal Python error: Aborted" in err and "in stuck_here" in err
+
+
+def test_stop_process_kills_a_process_that_ignores_the_abort_too():
     proc = _python(
         "import signal, time\n"
         "signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+        "signal.signal(signal.SIGABRT, signal.SIG_IGN)\n"
         "print('ready', flush=True)\n"
         "time.sleep(60)\n")
-    seconds, out, err = stop_process(proc, signal.SIGTERM, timeout_s=0.3)
+    seconds, out, err = stop_process(proc, signal.SIGTERM, timeout_s=0.3, dump_s=0.3)
     assert proc.returncode == -signal.SIGKILL
     assert 0.3 <= seconds < 5.0
     assert (out, err) == ("", "")
