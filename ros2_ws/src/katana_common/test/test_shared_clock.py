@@ -101,3 +101,58 @@ def test_use_sim_time_still_switches_each_joined_node(graph):
     assert graph.publish_until(17, graph.sim_nodes)
     time.sleep(0.05)
     assert all(n.get_clock().now().nanoseconds == 17 * 10**9 for n in graph.sim_nodes)
+
+
+class ClockSource(Node):
+    """A node that publishes /clock and offers add_clock_listener, as sim_node does (`on`:
+    whether its /clock is on)."""
+
+    def __init__(self, context: Context, on: bool = True) -> None:
+        super().__init__("clock_source", context=context)
+        self.on = on
+        self.publisher = self.create_publisher(Clock, CLOCK_TOPIC, CLOCK_QOS)
+        self.listeners: list = []
+
+    def add_clock_listener(self, listener) -> bool:
+        if self.on:
+            self.listeners.append(listener)
+        return self.on
+
+    def publish(self, seconds: int) -> None:
+        msg = Clock(clock=Time(seconds=seconds).to_msg())
+        self.publisher.publish(msg)
+        for listener in self.listeners:
+            listener(msg)
+
+
+def test_a_clock_source_in_the_process_drives_the_joined_clocks_as_it_publishes(graph):
+    shared = SharedClock()
+    assert shared.join(graph.sim_nodes[0])  # a subscription first, on the first node joined
+    assert graph.clock_subscriptions() == 3
+    source = ClockSource(graph.context)
+    graph.nodes.append(source)
+    graph.executor.add_node(source)
+    assert not shared.join(source)  # on wall time itself: its clock is not driven
+    assert shared.local_source is source and shared.host is None
+    assert [shared.join(n) for n in graph.sim_nodes[1:]] == [True, True]
+    assert graph.clock_subscriptions() == 0  # the shared subscription went with it
+    for seconds in (3, 4, 9):
+        source.publish(seconds)  # read back at once: no message went through DDS
+        assert all(n.get_clock().now().nanoseconds == seconds * 10**9
+                   for n in graph.sim_nodes)
+    # /clock from elsewhere is not followed: the process has its source
+    graph.publisher.publish(Clock(clock=Time(seconds=20).to_msg()))
+    time.sleep(0.2)
+    assert all(n.get_clock().now().nanoseconds == 9 * 10**9 for n in graph.sim_nodes)
+
+
+def test_a_clock_source_with_its_clock_off_leaves_the_shared_subscription(graph):
+    shared = SharedClock()
+    source = ClockSource(graph.context, on=False)
+    graph.nodes.append(source)
+    graph.executor.add_node(source)
+    shared.join(source)
+    assert [shared.join(n) for n in graph.sim_nodes] == [True, True, True]
+    assert shared.local_source is None and shared.host is graph.sim_nodes[0]
+    assert graph.clock_subscriptions() == 1
+    assert graph.publish_until(5, graph.sim_nodes)
