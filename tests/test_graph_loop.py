@@ -218,3 +218,20 @@ def test_joint_states_heard_late_do_not_part_two_runs(tmp_path, monkeypatch):
     logs = _two_runs(tmp_path, 8, 2, lambda: _delivered_late(
         PickPlaceExecutor, "_on_joints", 0.3, monkeypatch))
     assert logs[0] == logs[1], _first_difference(*logs)
+
+
+def test_a_perception_busy_with_the_memory_judges_as_a_prompt_one(tmp_path, monkeypatch):
+    """In the second run the perception takes each memory/blocks 0.3 s late, holding its
+    input callbacks meanwhile. The judge's "before" is the memory the learner acted on and an
+    image at least as new as the one it was built from (JudgePlacement.blocks_sequence), and
+    an experience reaches the memory only once it has settled on the scene after the task
+    (RobotEnvironment.wait_for_scene_after): the runs write the same log. Without the two, the
+    judge took whatever memory and image the perception held, and two runs of this seed
+    labelled an experiment differently in two of four tries."""
+
+    def make_late() -> list[threading.Timer]:
+        _late(PerceptionNode, "on_memory_blocks", 0.3, monkeypatch)
+        return []
+
+    logs = _two_runs(tmp_path, 3, 6, make_late)
+    assert logs[0] == logs[1], _first_difference(*logs)

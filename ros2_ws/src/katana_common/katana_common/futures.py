@@ -45,3 +45,24 @@ def wait_for_future(
         remaining -= step
     return future.result()
 
+
+
+class NumberedArrivals:
+    """The number of the latest item of a numbered stream (a BlockArray's `sequence`), and a
+    bounded wait for a given number or a later one. A service asked to answer "from item n or
+    a later one" waits here until its own subscription has taken n in: answering from the one
+    before would depend on thread timing."""
+
+    def __init__(self) -> None:
+        self._arrived = threading.Condition()
+        self.number = 0
+
+    def arrived(self, number: int) -> None:
+        with self._arrived:
+            self.number = int(number)
+            self._arrived.notify_all()
+
+    def wait_for(self, number: int, timeout_s: float) -> bool:
+        """Whether item `number` (or a later one) is in, waiting at most `timeout_s`."""
+        with self._arrived:
+            return self._arrived.wait_for(lambda: self.number >= number, timeout_s)

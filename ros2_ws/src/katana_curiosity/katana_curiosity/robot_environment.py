@@ -149,17 +149,26 @@ class RobotEnvironment:
 
     def wait_for_scene_after(self, parked_ns: int) -> BlockArray:
         """The first memory/blocks built from an image taken after the arm parked (at
-        `parked_ns` on this node's clock), so the judge sees the outcome, as the paper's robot
-        did: one whose stamp (its image's time) is at or past `parked_ns`, or the second one
-        from now (one may come from an image captured during the last motion, the second
-        cannot), whichever comes first. The stamp rule needs the node's clock to be the
+        `parked_ns` on this node's clock), with the memory at rest on it, so the judge sees the
+        outcome, as the paper's robot did: one whose stamp (its image's time) is at or past
+        `parked_ns`, or the second one from now (one may come from an image captured during the
+        last motion, the second cannot), whichever comes first, and with a settled frame (one
+        located on levels it changed none of). The stamp rule needs the node's clock to be the
         camera's. In the fast sim it is an ordering, not a race: no image is rendered while a
         motion is stepped, and /clock went out during the last motion and at its end before
         its result, so an image stamped at or past `parked_ns` was rendered after the arm
-        stopped."""
+        stopped.
+
+        The settled frame makes the experience that follows reach a memory at rest: one whose
+        first frame of the new scene changed a level locates on the new levels once more
+        (perception segments the latest image again), and an experience that came between the
+        two would be folded into another history than one that came after them (seen: a
+        memory that took the experience first located a fallen block 1.3 px elsewhere, and the
+        run parted from there)."""
         newer_than = self.blocks_count() + 1
-        self._wait(lambda: self._blocks_count > newer_than or (
-            self._blocks_count > newer_than - 1 and _stamp_ns(self._blocks) >= parked_ns),
+        self._wait(lambda: (self._blocks_count > newer_than or (
+            self._blocks_count > newer_than - 1 and _stamp_ns(self._blocks) >= parked_ns))
+            and self._blocks.settled_frames > 0,
             self.config.blocks_timeout_s, f"{BLOCKS_TOPIC} after the arm parked")
         return self._blocks
 
@@ -423,7 +432,12 @@ class RobotEnvironment:
         return response.instance
 
     def _judge(self, phase: int, instance: FoveaInstance, placed: str) -> int:
-        request = JudgePlacement.Request(phase=phase, instance=instance, placed_block=placed)
+        # judged against the memory this node acted on (or a later one), not the one the
+        # perception happens to hold
+        with self._cv:
+            sequence = self._blocks.sequence if self._blocks is not None else 0
+        request = JudgePlacement.Request(phase=phase, instance=instance, placed_block=placed,
+                                         blocks_sequence=sequence)
         response = self._call(self.judge_client, request)
         if not response.success:
             raise ExperimentAborted("judge_failed",

@@ -11,10 +11,10 @@ from __future__ import annotations
 import colorsys
 import math
 import sys
-import threading
 
 import numpy as np
 from geometry_msgs.msg import Point
+from katana_common.futures import NumberedArrivals
 from katana_common.node_runner import run_node
 from katana_common.params import Param, declare_parameters
 from katana_common.qos import SENSOR_QOS, STATE_QOS
@@ -38,8 +38,10 @@ from .messages import (
     node_calibration,
 )
 from .perception_params import (
+    BLOCKS_WAIT,
     COLOR_TABLE,
     EXTRINSICS_FILE,
+    blocks_not_received,
     check_files_and_colors,
     segmenter_from,
 )
@@ -57,8 +59,7 @@ PARAMS = (
     Param("clearance", 0.005, "Free margin around a placed block, m.", 0.0, 0.1),
     Param("max_height", 3, "Highest stack offered for placement.", 0, 32),
     Param("table_yaw", 0.0, "Yaw of blocks placed on the table, rad.", -math.pi, math.pi),
-    Param("blocks_wait_s", 2.0, "Longest wait for the memory/blocks a request names "
-          "(blocks_sequence) before it is refused, s.", 0.0, 60.0, live=True),
+    BLOCKS_WAIT,
     Param("mask_source", "memory", "'memory': block pixels are the remembered top faces "
           "re-projected; 'image': visible top blocks use their segmented pixels.",
           choices=("memory", "image")),
@@ -106,8 +107,7 @@ class FoveaNode(Node):
 
         self.calibration = None
         self.blocks = None
-        self.blocks_sequence = 0  # BlockArray.sequence of `blocks`
-        self._blocks_arrived = threading.Condition()
+        self.blocks_arrivals = NumberedArrivals()  # BlockArray.sequence of `blocks`
         self.rgb = None
         self.setting = 0
         self._key = None
@@ -150,21 +150,16 @@ class FoveaNode(Node):
             self.setting += 1
             self._key = (key, poses)
             self._scene = None
-        with self._blocks_arrived:
-            self.blocks, self.blocks_sequence = blocks, int(msg.sequence)
-            self._blocks_arrived.notify_all()
+        self.blocks = blocks
+        self.blocks_arrivals.arrived(msg.sequence)
 
     def _await_blocks(self, sequence: int) -> None:
         """Until the memory/blocks numbered `sequence` (or a later one) is in: the asker waited
-        for it, and this node's subscription may not have taken it in yet (an answer from the one
-        before would depend on thread timing). NotFound after blocks_wait_s."""
+        for it, and this node's subscription may not have taken it in yet. NotFound after
+        blocks_wait_s."""
         wait_s = float(self.params["blocks_wait_s"])
-        with self._blocks_arrived:
-            if not self._blocks_arrived.wait_for(lambda: self.blocks_sequence >= sequence,
-                                                 wait_s):
-                raise NotFound(f"memory/blocks number {sequence} not received within "
-                               f"{wait_s:g} s (blocks_wait_s); the last was number "
-                               f"{self.blocks_sequence}")
+        if not self.blocks_arrivals.wait_for(sequence, wait_s):
+            raise NotFound(blocks_not_received(sequence, wait_s, self.blocks_arrivals.number))
 
     # ------------------------------------------------------------------ services
     def _current_scene(self) -> FoveaScene:

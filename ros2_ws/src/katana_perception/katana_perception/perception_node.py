@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
 
 import cv2
 import numpy as np
 from katana_common.diagnostics import Diagnostics
 from katana_common.executor import MultiThreadedExecutor
+from katana_common.futures import NumberedArrivals
 from katana_common.health import RateMeter, stream_health
 from katana_common.node_runner import run_node
 from katana_common.params import Param, declare_parameters
@@ -42,8 +44,10 @@ from .messages import (
     rgb_to_image,
 )
 from .perception_params import (
+    BLOCKS_WAIT,
     COLOR_TABLE,
     EXTRINSICS_FILE,
+    blocks_not_received,
     check_files_and_colors,
     segmenter_from,
 )
@@ -71,6 +75,7 @@ PARAMS = (
           "change (live).", 0.0, 1.0, live=True),
     Param("publish_debug_image", True, "Publish perception/debug_image when someone listens "
           "(live).", live=True),
+    BLOCKS_WAIT,
 )
 
 
@@ -89,6 +94,7 @@ class PerceptionNode(Node):
         self.levels_experience = -1  # memory/blocks' experience the levels come from
         self.levels_version = 0  # ... and the version of those levels
         self.memory_blocks = []
+        self.blocks_arrivals = NumberedArrivals()  # BlockArray.sequence of memory_blocks
         self.latest_rgb: np.ndarray | None = None
         self.latest_header: Header | None = None  # the latest image's
         self.frames = 0
@@ -100,10 +106,17 @@ class PerceptionNode(Node):
         self.images = RateMeter(window_s=10.0)
         self.diagnostics = Diagnostics(
             self, {"camera": lambda: stream_health("images", self.images)})
+        # Images in one group, camera_info and memory/blocks in another: a camera faster than
+        # segmentation keeps the image subscription ready, and in one group with it they would
+        # lose every race for the group to it (never calibrated, or judging from an old memory).
+        # Their callbacks share the node's state under `_state_lock`.
+        self._state_lock = threading.Lock()
         self.create_subscription(Image, "camera/image_raw", self.on_image, SENSOR_QOS)
+        state = MutuallyExclusiveCallbackGroup()
         self.create_subscription(CameraInfo, "camera/camera_info", self.on_camera_info,
-                                 SENSOR_QOS)
-        self.create_subscription(BlockArray, "memory/blocks", self.on_memory_blocks, STATE_QOS)
+                                 SENSOR_QOS, callback_group=state)
+        self.create_subscription(BlockArray, "memory/blocks", self.on_memory_blocks, STATE_QOS,
+                                 callback_group=state)
         # own group: a camera faster than segmentation keeps the image subscription ready, and
         # rclpy serves subscriptions first, so the judge starved behind frames (hardware graph)
         self.create_service(JudgePlacement, "perception/judge_placement", self.on_judge,
@@ -130,42 +143,50 @@ class PerceptionNode(Node):
         if self.calibration is None:
             self.get_logger().info(f"calibrated: {calib.width}x{calib.height}, "
                                    f"fx {calib.K[0, 0]:.1f}, camera at {calib.centre.round(3)}")
-        self.calibration = calib
+        with self._state_lock:
+            self.calibration = calib
 
     def on_memory_blocks(self, msg: BlockArray) -> None:
         blocks = decode_or_warn(self, "memory/blocks", blocks_from_msg, msg)
         if blocks is None:
             return
-        self.memory_blocks = blocks
-        self.levels = {b.id: b.level for b in blocks}
-        changed = msg.levels_version != self.levels_version
-        self.levels_experience, self.levels_version = int(msg.experience), int(msg.levels_version)
-        if changed and self.latest_rgb is not None and self.calibration is not None:
-            # The memory has folded an experience in or changed a level and waits for a frame
-            # located on its new levels: the latest image, segmented on them, is that frame (no
-            # wait for the next image; the scene is the one the latest image shows).
-            self._publish_detections(self.latest_rgb, self.latest_header, self.latest_rgb)
+        with self._state_lock:
+            self.memory_blocks = blocks
+            self.levels = {b.id: b.level for b in blocks}
+            changed = msg.levels_version != self.levels_version
+            self.levels_experience = int(msg.experience)
+            self.levels_version = int(msg.levels_version)
+            if changed and self.latest_rgb is not None and self.calibration is not None:
+                # The memory has folded an experience in or changed a level and waits for a
+                # frame located on its new levels: the latest image, segmented on them, is that
+                # frame (no wait for the next image; the scene is the one it shows).
+                self._publish_detections(self.latest_rgb, self.latest_header, self.latest_rgb)
+            self.blocks_arrivals.arrived(msg.sequence)
 
     def on_image(self, msg: Image) -> None:
         self.images.tick()
         rgb = decode_or_warn(self, "image", image_to_rgb, msg)
         if rgb is None:
             return
-        if self.calibration is None:
-            self.get_logger().info("waiting for camera/camera_info", throttle_duration_sec=10.0)
-            return
-        if rgb.shape[:2] != (self.calibration.height, self.calibration.width):
-            self.get_logger().warn(
-                f"image rejected: {rgb.shape[1]}x{rgb.shape[0]} but camera_info says "
-                f"{self.calibration.width}x{self.calibration.height}", throttle_duration_sec=5.0)
-            return
-        previous = self.latest_rgb
-        self.latest_rgb, self.latest_header = rgb, msg.header
-        self.frames += 1
-        self._publish_detections(rgb, msg.header, previous)
+        with self._state_lock:
+            calib = self.calibration
+            if calib is None:
+                self.get_logger().info("waiting for camera/camera_info",
+                                       throttle_duration_sec=10.0)
+                return
+            if rgb.shape[:2] != (calib.height, calib.width):
+                self.get_logger().warn(
+                    f"image rejected: {rgb.shape[1]}x{rgb.shape[0]} but camera_info says "
+                    f"{calib.width}x{calib.height}", throttle_duration_sec=5.0)
+                return
+            previous = self.latest_rgb
+            self.latest_rgb, self.latest_header = rgb, msg.header
+            self.frames += 1
+            self._publish_detections(rgb, msg.header, previous)
 
     def _publish_detections(self, rgb: np.ndarray, image_header: Header, previous) -> None:
-        """perception/detections of `rgb` on the current levels, stamped with its image."""
+        """perception/detections of `rgb` on the current levels, stamped with its image (under
+        `_state_lock`)."""
         # A still scene seen by a still camera (the simulator between motions) repeats its
         # frame exactly: the same pixels and levels segment to the same blocks.
         calib, levels, dets = self._segmented or (None, None, None)
@@ -241,21 +262,32 @@ class PerceptionNode(Node):
                                        throttle_duration_sec=2.0)
                 return res
             placement = placement_from_msg(req.instance)
-        if self.latest_rgb is None or self.calibration is None:
+        # the memory the asker acted on, and so an image at least as new as the one it was
+        # built from: what the judge sees then does not depend on thread timing
+        wait_s = float(self.params["blocks_wait_s"])
+        if not self.blocks_arrivals.wait_for(int(req.blocks_sequence), wait_s):
+            res.success = False
+            res.message = blocks_not_received(int(req.blocks_sequence), wait_s,
+                                              self.blocks_arrivals.number)
+            return res
+        with self._state_lock:
+            rgb, calib, blocks, frames = (self.latest_rgb, self.calibration,
+                                          self.memory_blocks, self.frames)
+        if rgb is None or calib is None:
             res.success, res.message = False, "no image (or no camera_info) received yet"
             return res
-        judge = Judge(self.segmenter, self.calibration, self.judge_params)
+        judge = Judge(self.segmenter, calib, self.judge_params)
         if before_phase:
-            self.before = (judge.snapshot(self.latest_rgb, self.memory_blocks), self.frames)
-            res.success, res.message = True, f"before: image {self.frames} kept"
+            self.before = (judge.snapshot(rgb, blocks), frames)
+            res.success, res.message = True, f"before: image {frames} kept"
             return res
         if self.before is None:
             res.success, res.message = False, "no PHASE_BEFORE snapshot to compare with"
             return res
-        if self.frames <= self.before[1]:
+        if frames <= self.before[1]:
             res.success, res.message = False, "no new image since PHASE_BEFORE"
             return res
-        verdict = judge.judge(self.before[0], self.latest_rgb, req.placed_block, placement)
+        verdict = judge.judge(self.before[0], rgb, req.placed_block, placement)
         self.before = None
         res.success, res.label, res.message = True, int(verdict.label), verdict.reason
         self.get_logger().info(f"judged {'stable' if verdict.label > 0 else 'fell'}: "

@@ -21,6 +21,18 @@ COLOR_TABLE = Param(
     "scale; the name is the block id (read-only).", min_length=1)
 
 
+#: how long a request naming a memory/blocks (blocks_sequence) waits for it
+BLOCKS_WAIT = Param(
+    "blocks_wait_s", 2.0, "Longest wait for the memory/blocks a request names "
+    "(blocks_sequence) before it is refused, s.", 0.0, 60.0, live=True)
+
+
+def blocks_not_received(sequence: int, wait_s: float, last: int) -> str:
+    """Why a request naming memory/blocks `sequence` is refused (BLOCKS_WAIT ran out)."""
+    return (f"memory/blocks number {sequence} not received within {wait_s:g} s "
+            f"(blocks_wait_s); the last was number {last}")
+
+
 def segmenter_from(values) -> Segmenter:
     """The segmenter of a node's parameters: its color_table and the scene's block_size."""
     return Segmenter(parse_color_table(values["color_table"]),

@@ -150,7 +150,7 @@ def _assert_finite(msgs: list[BlockArray]) -> None:
 # ---------------------------------------------------------------- perception_node
 @pytest.fixture(scope="module")
 def perception(ctx):
-    node = _make(ctx, PerceptionNode, publish_debug_image=False)
+    node = _make(ctx, PerceptionNode, publish_debug_image=False, blocks_wait_s=0.0)
     node.on_camera_info(good_info())
     _frame(node)
     yield node
@@ -186,14 +186,19 @@ def test_perception_memory_blocks(perception, msg):
 
 
 @SETTINGS
-@given(phase=uint8, inst=instances(), placed=names)
-def test_perception_judge_placement(perception, phase, inst, placed):
+@given(phase=uint8, inst=instances(), placed=names, sequence=st.integers(0, 2**64 - 1))
+def test_perception_judge_placement(perception, phase, inst, placed, sequence):
+    """blocks_wait_s 0: a request naming a memory/blocks not in yet is refused at once (for
+    that, or for what is wrong with the rest of it, checked first)."""
     before = JudgePlacement.Request(phase=JudgePlacement.Request.PHASE_BEFORE)
     assert perception.on_judge(before, JudgePlacement.Response()).success
     _frame(perception)
-    req = JudgePlacement.Request(phase=phase, instance=inst, placed_block=placed)
+    req = JudgePlacement.Request(phase=phase, instance=inst, placed_block=placed,
+                                 blocks_sequence=sequence)
     res = perception.on_judge(req, JudgePlacement.Response())
     TALLY["judge_placement tried"] += 1
+    if sequence > perception.blocks_arrivals.number:
+        assert not res.success
     if res.success:
         # only a sound request is judged: the phase, a known block and a finite placement
         # within the workspace on a known stack

@@ -233,6 +233,69 @@ def test_judge_placement_service(ros):
     assert res.success and res.label == -1 and "mm from the placement" in res.message
 
 
+def test_the_judge_keeps_the_memory_blocks_the_request_names(ros):
+    """The learner asks for a judgement on the memory it acted on: the perception's own
+    subscription may not have taken that array in yet. PHASE_BEFORE naming array 2 while the
+    node holds array 1 is answered only once array 2 is in, and keeps it; one naming an array
+    that never comes is refused after blocks_wait_s, saying so."""
+    node = ros.make(PerceptionNode, blocks_wait_s=10.0)
+    cli = ros.helper.create_client(JudgePlacement, "perception/judge_placement")
+    pub = ros.helper.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
+    n = node.frames
+    for _ in range(50):
+        ros.camera_info()
+        ros.image(SCATTER)
+        if ros.spin_until(lambda: node.frames > n, timeout_s=0.3):
+            break
+    first = blocks_msg([Block("red", "red", 0.18, 0.08, 0.3)])
+    first.sequence = 1
+    pub.publish(first)
+    assert ros.spin_until(lambda: node.blocks_arrivals.number == 1)
+    before = JudgePlacement.Request(phase=JudgePlacement.Request.PHASE_BEFORE, blocks_sequence=2)
+    future = cli.call_async(before)
+    assert not ros.spin_until(future.done, timeout_s=0.5)  # array 2 is not in: no answer yet
+    second = blocks_msg([Block("red", "red", 0.18, 0.08, 0.3),
+                         Block("green", "green", 0.22, -0.08, -0.2)])
+    second.sequence = 2
+    pub.publish(second)
+    assert ros.spin_until(future.done)
+    assert future.result().success
+    assert set(node.before[0].blocks) == {"red", "green"}  # array 2's blocks, kept
+    node.set_parameters([Parameter("blocks_wait_s", value=0.2)])
+    start = time.monotonic()
+    before.blocks_sequence = 9
+    res = ros.call(cli, before)
+    assert not res.success and time.monotonic() - start >= 0.2
+    assert "number 9" in res.message and "blocks_wait_s" in res.message
+
+
+def test_camera_info_and_memory_are_taken_while_images_keep_the_node_busy(ros, monkeypatch):
+    """A camera faster than segmentation keeps the image subscription ready all the time: the
+    node still calibrates and takes memory/blocks in (before, in one group with the images,
+    it lost every race for the group and never calibrated)."""
+    original = PerceptionNode.on_image
+
+    def slow(self, msg):
+        time.sleep(0.05)  # slower than the images below come
+        original(self, msg)
+
+    monkeypatch.setattr(PerceptionNode, "on_image", slow)
+    node = ros.make(PerceptionNode)
+    pub = ros.helper.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
+    assert ros.spin_until(lambda: ros.image_pub.get_subscription_count() > 0)
+    memory = blocks_msg([Block("red", "red", 0.18, 0.08, 0.3)])
+    memory.sequence = 4
+    start = time.monotonic()
+    while time.monotonic() - start < 10.0 and not (
+            node.calibration is not None and node.blocks_arrivals.number == 4):
+        ros.image(SCATTER)  # every 10 ms, five times faster than the node takes them
+        ros.camera_info()
+        pub.publish(memory)
+        ros.spin_until(lambda: False, timeout_s=0.01)
+    assert node.calibration is not None and node.blocks_arrivals.number == 4
+    ros.spin_until(lambda: False, timeout_s=0.3)  # the images still queued are taken
+
+
 def detections_msg(scene, levels=None):
     rgb, _ = Renderer(CALIB).render(scene)
     dets = Segmenter().segment(rgb, CALIB, levels)
