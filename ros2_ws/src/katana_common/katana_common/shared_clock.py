@@ -14,12 +14,6 @@ unchanged: setting a joined node's use_sim_time to false puts its clock on wall 
 setting it back to true gives it its own subscription again (a second source of the same
 times). A node on wall time is not joined.
 
-A node of the process that publishes /clock itself and offers `add_clock_listener(callback)`
-(sim_node) drives the joined clocks directly: each Clock it publishes reaches them as it is
-published, and there is no shared subscription, which would only take the same messages back
-from DDS, one callback each (about 10 of the 130 callbacks an experiment of the fast-sim loop
-costs). The process then follows that node's clock alone, as a graph with one clock source does.
-
 The node's TimeSource is rclpy's private `_time_source` (and its `_clock_sub`): rclpy has no
 public way to share one. Where they are missing (another rclpy) `join` leaves the node as it is.
 """
@@ -44,29 +38,20 @@ class SharedClock:
         self._sources: list[weakref.ref] = []  # the joined nodes' TimeSources
         self._host: weakref.ref | None = None
         self._subscription = None
-        self._local: weakref.ref | None = None  # the node of this process publishing /clock
 
     @property
     def host(self) -> Node | None:
         """The node that holds the shared subscription (the first joined), if any."""
         return self._host() if self._host is not None else None
 
-    @property
-    def local_source(self) -> Node | None:
-        """The joined node whose published clock drives the others directly, if any."""
-        return self._local() if self._local is not None else None
-
     def join(self, node: Node) -> bool:
-        """Drive `node`'s clock from the shared subscription (or the local source) instead of
-        its own; False (and its clock unchanged) when the node has no /clock subscription (it
-        runs on wall time). A node that publishes /clock and offers `add_clock_listener` becomes
-        the local source either way."""
-        self._take_local_source(node)
+        """Drive `node`'s clock from the shared subscription instead of its own; False (and
+        nothing changed) when the node has no /clock subscription (it runs on wall time)."""
         source = getattr(node, "_time_source", None)
         own = getattr(source, "_clock_sub", None)
         if own is None:
             return False
-        if self._subscription is None and self._local is None:
+        if self._subscription is None:
             self._host = weakref.ref(node)
             self._subscription = node.create_subscription(
                 Clock, CLOCK_TOPIC, self._on_clock, CLOCK_QOS,
@@ -75,18 +60,6 @@ class SharedClock:
         source._clock_sub = None  # as rclpy leaves it when it destroys the subscription itself
         self._sources.append(weakref.ref(source))
         return True
-
-    def _take_local_source(self, node: Node) -> None:
-        if self._local is not None:
-            return
-        add_listener = getattr(node, "add_clock_listener", None)
-        if not callable(add_listener) or not add_listener(self._on_clock):
-            return  # not a clock source (or one with its /clock off)
-        self._local = weakref.ref(node)
-        host = self.host
-        if self._subscription is not None and host is not None:
-            host.destroy_subscription(self._subscription)
-        self._subscription, self._host = None, None
 
     def _on_clock(self, msg: Clock) -> None:
         for ref in self._sources:

@@ -8,7 +8,6 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable
 
 from katana_common.messages import time_msg
 from katana_common.qos import CLOCK_QOS, JOINT_STATE_QOS, SENSOR_QOS, STATE_QOS
@@ -54,15 +53,6 @@ class SimOutputs:
         self.truth_pub = node.create_publisher(BlockArray, "sim/ground_truth", STATE_QOS)
         self.clock_pub = (node.create_publisher(Clock, "/clock", CLOCK_QOS)
                           if params["publish_clock"] else None)
-        self._clock_listeners: list[Callable[[Clock], None]] = []
-
-    def add_clock_listener(self, listener: Callable[[Clock], None]) -> bool:
-        """Hand every Clock published from now on to `listener` too, as it is published (under
-        the world's lock); False when /clock is off (`publish_clock`)."""
-        if self.clock_pub is None:
-            return False
-        self._clock_listeners.append(listener)
-        return True
 
     def set_rates(self, changed: dict) -> None:
         for out, name in RATE_PARAMS.items():
@@ -99,10 +89,7 @@ class SimOutputs:
             elif name in due:
                 self._wall_next[name] = wall + cap
         if "clock" in due and self.clock_pub is not None:
-            clock = Clock(clock=time_msg(t))
-            self.clock_pub.publish(clock)
-            for listener in self._clock_listeners:
-                listener(clock)
+            self.clock_pub.publish(Clock(clock=time_msg(t)))
         if "joints" in due:
             self.joint_pub.publish(msgs.joint_state_msg(self.world))
         if "truth" in due:

@@ -87,10 +87,6 @@ class SimNode(Node):
             f"real_time_factor {self.rtf:g}{' (lock-step)' if self.fast else ''}, "
             f"camera {cfg.camera.width}x{cfg.camera.height}")
 
-    def add_clock_listener(self, listener) -> bool:
-        """katana_common.shared_clock: this process's nodes take the time as it is published."""
-        return self.outputs.add_clock_listener(listener)
-
     def _on_params(self, changed: dict) -> None:
         with self.lock:
             self.outputs.set_rates(changed)

@@ -14,8 +14,8 @@ from control_msgs.action import FollowJointTrajectory, GripperCommand
 from control_msgs.msg import JointComponentTolerance
 from diagnostic_msgs.msg import DiagnosticArray
 from katana_common.action_client import ActionClient
-from katana_common.messages import to_nanoseconds, to_seconds
-from katana_common.qos import CLOCK_QOS, DIAGNOSTICS_QOS, JOINT_STATE_QOS, SENSOR_QOS, STATE_QOS
+from katana_common.messages import to_seconds
+from katana_common.qos import DIAGNOSTICS_QOS, JOINT_STATE_QOS, SENSOR_QOS, STATE_QOS
 from katana_common.testing import wait_until
 from katana_description import arm_contract as ac
 from katana_description import models as m
@@ -25,7 +25,6 @@ from katana_sim.sim_node import FAST_IMAGE_STANDING_S, SimNode
 from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
 from rclpy.parameter import Parameter
-from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from trajectory_msgs.msg import JointTrajectoryPoint, MultiDOFJointTrajectoryPoint
 
@@ -88,19 +87,6 @@ def test_camera_images_and_info(graph):
         ref = np.array(m.COLOURS[blk.color][:3]) * 255
         cos = pix @ ref / (np.linalg.norm(pix) * np.linalg.norm(ref))
         assert cos > 0.97, (blk.color, pix, ref)
-
-
-def test_every_clock_published_reaches_a_clock_listener_as_it_is_published(graph):
-    """What katana_common.shared_clock drives a process's clocks from (sim_node in it)."""
-    sim, probe = graph["sim"], graph["probe"]
-    heard: list[int] = []
-    published: list[int] = []
-    probe.create_subscription(Clock, "/clock",
-                              lambda msg: published.append(to_nanoseconds(msg.clock)), CLOCK_QOS)
-    assert sim.add_clock_listener(lambda msg: heard.append(to_nanoseconds(msg.clock)))
-    assert wait_until(lambda: len([t for t in published if heard and t >= heard[0]]) >= 5)
-    assert heard == sorted(heard)
-    assert {t for t in published if t >= heard[0]} <= set(heard)  # best effort: some may drop
 
 
 def test_joint_states_carry_seven_joints(graph):
