@@ -4,7 +4,7 @@ rclpy's `spin_until_future_complete` must not be called from inside a callback o
 that is already spinning; there the done-callback and an Event are the way to wait (the
 project's executor runs that callback at once: katana_common.executor.runs_inline). The wait
 also ends early when the node is stopping, so shutdown never hangs on a reply that will not
-come.
+come. And the bounded wait for an item of a numbered stream (`NumberedArrivals`).
 """
 
 from __future__ import annotations
@@ -44,7 +44,6 @@ def wait_for_future(
         done.wait(step)
         remaining -= step
     return future.result()
-
 
 
 class NumberedArrivals:

@@ -20,7 +20,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from katana_common.action_client import ActionClient
 from katana_common.executor import MultiThreadedExecutor
-from katana_common.futures import Stopped, wait_for_future
+from katana_common.futures import NumberedArrivals, Stopped, wait_for_future
 from katana_common.messages import duration_msg, time_msg, to_nanoseconds, to_seconds
 from katana_common.node_runner import (
     EXIT_FAILURE,
@@ -325,6 +325,17 @@ def test_wait_for_future_returns_times_out_and_stops():
     with pytest.raises(Stopped):
         wait_for_future(Future(), 30.0, "stopped", stop=stop)
     assert time.monotonic() - start < 30.0
+
+
+def test_numbered_arrivals_wait_for_a_number_or_a_later_one():
+    arrivals = NumberedArrivals()
+    assert arrivals.wait_for(0, 0.0)  # nothing named: in at once
+    assert not arrivals.wait_for(1, 0.05)
+    threading.Timer(0.05, arrivals.arrived, (3,)).start()
+    start = time.monotonic()
+    assert arrivals.wait_for(2, 5.0)  # a later one will do
+    assert 0.04 <= time.monotonic() - start < 5.0 and arrivals.number == 3
+    assert not arrivals.wait_for(4, 0.05)
 
 
 class _SlowToRegister:

@@ -185,6 +185,17 @@ def red_on_green_instance():
         angle=0.0, x=0.262, y=-0.098, z=0.045, yaw=-0.3, support_ids=("green",)))
 
 
+def _show(ros, node, scene) -> None:
+    """Camera info and an image of `scene` until the perception node has taken the image."""
+    n = node.frames
+    for _ in range(50):
+        ros.camera_info()
+        ros.image(scene)
+        if ros.spin_until(lambda: node.frames > n, timeout_s=0.3):
+            return
+    raise AssertionError("image never arrived")
+
+
 def test_judge_placement_service(ros):
     node = ros.make(PerceptionNode)
     cli = ros.helper.create_client(JudgePlacement, "perception/judge_placement")
@@ -194,16 +205,7 @@ def test_judge_placement_service(ros):
     res = ros.call(cli, after)
     assert not res.success and "no image" in res.message
 
-    def show(scene):
-        n = node.frames
-        for _ in range(50):
-            ros.camera_info()
-            ros.image(scene)
-            if ros.spin_until(lambda: node.frames > n, timeout_s=0.3):
-                return
-        raise AssertionError("image never arrived")
-
-    show(SCATTER)
+    _show(ros, node, SCATTER)
     res = ros.call(cli, after)
     assert not res.success and "PHASE_BEFORE" in res.message
     res = ros.call(cli, before)
@@ -219,16 +221,16 @@ def test_judge_placement_service(ros):
     # red put on green: stable
     stacked = [b for b in SCATTER if b.name != "red"] + [stack_block("red", 0.262, -0.098, 2,
                                                                        -0.3)]
-    show(stacked)
+    _show(ros, node, stacked)
     res = ros.call(cli, after)
     assert res.success and res.label == 1, res.message
     res = ros.call(cli, after)  # the before snapshot was used up
     assert not res.success and "PHASE_BEFORE" in res.message
     # red put on green but slid off onto the table: fell
-    show(SCATTER)
+    _show(ros, node, SCATTER)
     assert ros.call(cli, before).success
     slid = [b for b in SCATTER if b.name != "red"] + [stack_block("red", 0.21, -0.13, 1, 0.1)]
-    show(slid)
+    _show(ros, node, slid)
     res = ros.call(cli, after)
     assert res.success and res.label == -1 and "mm from the placement" in res.message
 
@@ -241,12 +243,7 @@ def test_the_judge_keeps_the_memory_blocks_the_request_names(ros):
     node = ros.make(PerceptionNode, blocks_wait_s=10.0)
     cli = ros.helper.create_client(JudgePlacement, "perception/judge_placement")
     pub = ros.helper.create_publisher(BlockArray, "memory/blocks", STATE_QOS)
-    n = node.frames
-    for _ in range(50):
-        ros.camera_info()
-        ros.image(SCATTER)
-        if ros.spin_until(lambda: node.frames > n, timeout_s=0.3):
-            break
+    _show(ros, node, SCATTER)
     first = blocks_msg([Block("red", "red", 0.18, 0.08, 0.3)])
     first.sequence = 1
     pub.publish(first)
