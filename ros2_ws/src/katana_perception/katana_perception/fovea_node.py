@@ -41,8 +41,8 @@ from .perception_params import (
     BLOCKS_WAIT,
     COLOR_TABLE,
     EXTRINSICS_FILE,
-    blocks_not_received,
     check_files_and_colors,
+    missing_blocks,
     segmenter_from,
 )
 
@@ -157,9 +157,9 @@ class FoveaNode(Node):
         """Until the memory/blocks numbered `sequence` (or a later one) is in: the asker waited
         for it, and this node's subscription may not have taken it in yet. NotFound after
         blocks_wait_s."""
-        wait_s = float(self.params["blocks_wait_s"])
-        if not self.blocks_arrivals.wait_for(sequence, wait_s):
-            raise NotFound(blocks_not_received(sequence, wait_s, self.blocks_arrivals.number))
+        why = missing_blocks(self.blocks_arrivals, sequence, self.params)
+        if why:
+            raise NotFound(why)
 
     # ------------------------------------------------------------------ services
     def _current_scene(self) -> FoveaScene:

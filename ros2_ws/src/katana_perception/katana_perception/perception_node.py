@@ -47,8 +47,8 @@ from .perception_params import (
     BLOCKS_WAIT,
     COLOR_TABLE,
     EXTRINSICS_FILE,
-    blocks_not_received,
     check_files_and_colors,
+    missing_blocks,
     segmenter_from,
 )
 
@@ -264,11 +264,9 @@ class PerceptionNode(Node):
             placement = placement_from_msg(req.instance)
         # the memory the asker acted on, and so an image at least as new as the one it was
         # built from: what the judge sees then does not depend on thread timing
-        wait_s = float(self.params["blocks_wait_s"])
-        if not self.blocks_arrivals.wait_for(int(req.blocks_sequence), wait_s):
-            res.success = False
-            res.message = blocks_not_received(int(req.blocks_sequence), wait_s,
-                                              self.blocks_arrivals.number)
+        why = missing_blocks(self.blocks_arrivals, req.blocks_sequence, self.params)
+        if why:
+            res.success, res.message = False, why
             return res
         with self._state_lock:
             rgb, calib, blocks, frames = (self.latest_rgb, self.calibration,

@@ -1,9 +1,11 @@
-"""Parameters the perception nodes share (besides katana_common.scene.SCENE_PARAMS)."""
+"""Parameters the perception nodes share (besides katana_common.scene.SCENE_PARAMS), and the
+wait for a named memory/blocks that blocks_wait_s bounds."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from katana_common.futures import NumberedArrivals
 from katana_common.param_spec import Param
 
 from .core.colors import color_table_strings, parse_color_table
@@ -27,10 +29,14 @@ BLOCKS_WAIT = Param(
     "(blocks_sequence) before it is refused, s.", 0.0, 60.0, live=True)
 
 
-def blocks_not_received(sequence: int, wait_s: float, last: int) -> str:
-    """Why a request naming memory/blocks `sequence` is refused (BLOCKS_WAIT ran out)."""
+def missing_blocks(arrivals: NumberedArrivals, sequence: int, values) -> str | None:
+    """Wait (at most the node's blocks_wait_s) until memory/blocks number `sequence` or a later
+    one is in `arrivals`; None once it is, else why a request naming it is refused."""
+    wait_s = float(values["blocks_wait_s"])
+    if arrivals.wait_for(int(sequence), wait_s):
+        return None
     return (f"memory/blocks number {sequence} not received within {wait_s:g} s "
-            f"(blocks_wait_s); the last was number {last}")
+            f"(blocks_wait_s); the last was number {arrivals.number}")
 
 
 def segmenter_from(values) -> Segmenter:
