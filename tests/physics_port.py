@@ -22,11 +22,15 @@ class PhysicsPort:
 
     def move(self, points: list[list[float]], times: list[float],
              velocities: list[list[float]] | None = None,
-             finger_tolerance: float | None = None) -> MoveResult:
-        watch = {} if finger_tolerance is None else dict.fromkeys(m.FINGER_JOINTS,
-                                                                  finger_tolerance)
+             finger_tolerance: float | None = None,
+             finger_goal_tolerance: float | None = None) -> MoveResult:
+        def on_fingers(tolerance: float | None) -> dict[str, float]:
+            return {} if tolerance is None else dict.fromkeys(m.FINGER_JOINTS, tolerance)
+
         handle = self.sim.start_trajectory(
-            TrajectoryGoal(list(m.ARM_JOINTS), times, points, velocities, path_tolerance=watch))
+            TrajectoryGoal(list(m.ARM_JOINTS), times, points, velocities,
+                           path_tolerance=on_fingers(finger_tolerance),
+                           goal_tolerance=on_fingers(finger_goal_tolerance)))
         if run_motion(self.sim, handle, nullcontext(), times[-1] + self.slack_s) != DONE:
             self.sim.cancel_trajectory("timeout")
             return MoveResult(False, "no outcome in time", timed_out=True)

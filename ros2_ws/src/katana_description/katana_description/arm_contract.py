@@ -22,11 +22,13 @@ API (stable; plain Python in, plain Python out):
   ``positions``/``velocities`` are in ``joint_names`` order; a velocity row may be empty (all
   rows empty = the arm stops at every point). Tolerances are ``{name: rad}`` or a sequence of
   ``(name, rad)`` pairs (pairs let duplicates be detected): 0 = the contract's default,
-  negative = no tolerance (control_msgs' meaning). A path tolerance may also name a finger joint
-  (``models.FINGER_JOINTS``): no gripper goal runs during an arm trajectory, and the fingers
-  may move at most that far from where they were when the motion started (how a pick-and-place
-  watches a held block slip out while it carries it; the smallest finger tolerance given
-  counts, judged on the fingers' mean angle).
+  negative = no tolerance (control_msgs' meaning). A path or goal tolerance may also name a
+  finger joint (``models.FINGER_JOINTS``): no gripper goal runs during an arm trajectory, and
+  the fingers may move at most that far from where they were when the motion started, all
+  along the motion (path) or where it ends (goal): how a pick-and-place watches a held block
+  slip out while it carries it, and judges the grip where it is about to let go, both on the
+  backend's own measurements. The smallest finger tolerance given of each kind counts, judged
+  on the fingers' mean angle.
 - ``validate_trajectory(goal, current, contract) -> Verdict``: ``Verdict(SUCCESSFUL, "")`` or
   the error code and a reason. ``current`` maps every arm joint to its measured angle (rad).
   Checked: names (arm joints only, no duplicates, no multi-DOF parts, INVALID_JOINTS; a partial goal
@@ -40,7 +42,7 @@ API (stable; plain Python in, plain Python out):
   ``START_JUMP_RAD`` of ``current``; the peak speed of every cubic Hermite segment (the first from
   ``current`` at rest) within the joint's limit times ``speed_margin``, and its peak acceleration
   within ``max_accel`` (no margin: the controller's limit); tolerances finite, for joints of the
-  goal (path tolerances also for the fingers), no duplicates; ``goal_time_tolerance_s`` finite
+  goal (or for the fingers), no duplicates; ``goal_time_tolerance_s`` finite
   and >= 0.
 - ``complete_trajectory(goal, current) -> TrajectoryGoal``: the goal on all five arm joints in
   ``models.ARM_JOINTS`` order (joints a partial goal leaves out hold ``current``); velocities
@@ -52,12 +54,15 @@ API (stable; plain Python in, plain Python out):
   (PATH_TOLERANCE_VIOLATED); the fingers' only when the backend passes their mean angle
   (``fingers``), measured from ``fingers_start`` or else from the first angle passed. After the
   last point the goal succeeds once every joint is within its goal tolerance and ``at_rest``
-  (the backend's own "motion finished" signal), and fails with GOAL_TOLERANCE_VIOLATED after
-  ``goal_time_s`` more. Errors are plain differences ``actual - desired`` (see wrapping above).
+  (the backend's own "motion finished" signal), unless the fingers are then further than their
+  goal tolerance from the start (GOAL_TOLERANCE_VIOLATED, FINGERS_MOVED); it fails with
+  GOAL_TOLERANCE_VIOLATED after ``goal_time_s`` more. Errors are plain differences
+  ``actual - desired`` (see wrapping above).
 - ``Outcome``: ``status`` (RUNNING, SUCCEEDED, ABORTED, CANCELED), ``error_code``,
   ``message``; ``done``. ``hermite_peak_speed``, ``hermite_peak_accel`` and ``joint_error``
   are the helpers the rules use; ``fingers_moved(error_code, error_string)`` tells a stop by a
-  finger tolerance (its message begins with ``FINGERS_MOVED``) from other path errors.
+  finger tolerance, path or goal (its message begins with ``FINGERS_MOVED``), from other
+  path and goal errors.
 
 The gripper's goals follow the same contract in :mod:`katana_description.gripper_contract`.
 """
@@ -93,15 +98,18 @@ REST_SPEED_RAD_S = 1e-9
 Tolerances = Mapping[str, float] | Sequence[tuple[str, float]]
 
 
-#: How the error string of a goal stopped by its finger path tolerance begins (both backends
-#: answer with this contract's words, so a client tells that stop from a collision, which
-#: control_msgs reports with the same PATH_TOLERANCE_VIOLATED).
+#: How the error string of a goal failed by a finger tolerance begins (both backends answer
+#: with this contract's words, so a client tells that stop from a collision, which
+#: control_msgs reports with the same PATH_TOLERANCE_VIOLATED, and that end from an arm joint
+#: off its goal, GOAL_TOLERANCE_VIOLATED).
 FINGERS_MOVED = "the fingers moved"
 
 
 def fingers_moved(error_code: int, error_string: str) -> bool:
-    """Whether a result is a stop by a path tolerance on the fingers (FINGERS_MOVED)."""
-    return error_code == PATH_TOLERANCE_VIOLATED and error_string.startswith(FINGERS_MOVED)
+    """Whether a result is a failure by a path or goal tolerance on the fingers
+    (FINGERS_MOVED)."""
+    return (error_code in (PATH_TOLERANCE_VIOLATED, GOAL_TOLERANCE_VIOLATED)
+            and error_string.startswith(FINGERS_MOVED))
 
 
 class Verdict(NamedTuple):
@@ -244,14 +252,12 @@ def _pairs(tolerances: Tolerances) -> list[tuple[str, float]]:
 
 def _check_tolerances(kind: str, tolerances: Tolerances, names: Sequence[str]) -> Verdict:
     seen: set[str] = set()
-    held = m.FINGER_JOINTS if kind == "path" else ()
     for name, value in _pairs(tolerances):
-        if name not in names and name not in held:
-            also = f" or a finger joint {list(held)}" if held else ""
+        if name not in names and name not in m.FINGER_JOINTS:
             return Verdict(
                 INVALID_JOINTS,
                 (f"{kind} tolerance for {name!r}, which is not a joint of the goal "
-                 f"{list(names)}{also}"),
+                 f"{list(names)} or a finger joint {list(m.FINGER_JOINTS)}"),
             )
         if name in seen:
             return Verdict(INVALID_JOINTS, f"{kind} tolerance for {name} given twice")
@@ -479,8 +485,8 @@ class TrajectoryJudge:
             self._tol(goal_tol.get(n, 0.0), contract.default_goal_tolerance_rad) for n in self.names
         ]
         self.path_tol = [self._tol(path_tol.get(n, 0.0), math.inf) for n in self.names]
-        self.finger_tol = min((self._tol(path_tol[n], math.inf) for n in m.FINGER_JOINTS
-                               if n in path_tol), default=math.inf)
+        self.finger_tol = self._finger_tol(path_tol)
+        self.finger_goal_tol = self._finger_tol(goal_tol)
         self.fingers_start = None if fingers_start is None else float(fingers_start)
         self.goal_time_s = (
             float(goal.goal_time_tolerance_s) or contract.default_goal_time_tolerance_s
@@ -492,6 +498,12 @@ class TrajectoryJudge:
         if value == 0.0:
             return default
         return math.inf if value < 0.0 else value
+
+    @classmethod
+    def _finger_tol(cls, tolerances: dict[str, float]) -> float:
+        """The smallest finger tolerance given (0 or negative: none)."""
+        return min((cls._tol(tolerances[n], math.inf) for n in m.FINGER_JOINTS
+                    if n in tolerances), default=math.inf)
 
     def check(
         self,
@@ -529,6 +541,15 @@ class TrajectoryJudge:
             return self.outcome
         off = [abs(joint_error(a, f)) for a, f in zip(actual, self.final, strict=True)]
         if at_rest and all(o <= t for o, t in zip(off, self.goal_tol, strict=True)):
+            moved = (abs(float(fingers) - self.fingers_start)
+                     if fingers is not None and self.fingers_start is not None else 0.0)
+            if moved > self.finger_goal_tol:
+                self.outcome = Outcome(
+                    ABORTED, GOAL_TOLERANCE_VIOLATED,
+                    (f"{FINGERS_MOVED} {moved:.4f} rad from {self.fingers_start:.4f} rad "
+                     f"to {float(fingers):.4f} by the end of the motion (goal tolerance "
+                     f"{self.finger_goal_tol:.4f})"))
+                return self.outcome
             self.outcome = Outcome(SUCCEEDED, SUCCESSFUL, "")
         elif elapsed_s > self.duration_s + self.goal_time_s:
             j = max(range(len(off)), key=lambda k: off[k] - self.goal_tol[k])

@@ -170,7 +170,7 @@ def test_each_broken_rule_is_refused_with_its_code(case, fault):
     elif fault == "neg_gtt":
         kw["goal_time_tolerance_s"] = -0.1
     elif fault == "tol_other_joint":
-        kw["goal_tolerance"] = {"katana_r_finger_joint": 0.1}
+        kw["goal_tolerance"] = {"katana_bogus_joint": 0.1}
         code = ac.INVALID_JOINTS
     elif fault == "fast":  # the whole range in 10 ms
         rows[0][0] = hi if current[n0] - lo < hi - current[n0] else lo
@@ -302,17 +302,19 @@ def test_judge_succeeds_on_the_path_and_flags_a_deviation(case, deviation):
     assert n in out.message
 
 
-def test_a_path_tolerance_may_name_the_held_fingers_a_goal_tolerance_may_not():
+def test_path_and_goal_tolerances_may_name_the_held_fingers_once():
     n = m.ARM_JOINTS[0]
     fingers = m.FINGER_JOINTS[0]
-    path = ac.TrajectoryGoal([n], [2.0], [[REST[n]]], path_tolerance={fingers: 0.05})
-    assert ac.validate_trajectory(path, REST, CONTRACT).ok
-    goal = ac.TrajectoryGoal([n], [2.0], [[REST[n]]], goal_tolerance={fingers: 0.05})
-    verdict = ac.validate_trajectory(goal, REST, CONTRACT)
-    assert verdict.error_code == ac.INVALID_JOINTS and fingers in verdict.error_string
-    twice = ac.TrajectoryGoal([n], [2.0], [[REST[n]]],
-                              path_tolerance=[(fingers, 0.05), (fingers, 0.1)])
-    assert ac.validate_trajectory(twice, REST, CONTRACT).error_code == ac.INVALID_JOINTS
+    for kind in ("path_tolerance", "goal_tolerance"):
+        ok = ac.TrajectoryGoal([n], [2.0], [[REST[n]]], **{kind: {fingers: 0.05}})
+        assert ac.validate_trajectory(ok, REST, CONTRACT).ok
+        twice = ac.TrajectoryGoal([n], [2.0], [[REST[n]]],
+                                  **{kind: [(fingers, 0.05), (fingers, 0.1)]})
+        verdict = ac.validate_trajectory(twice, REST, CONTRACT)
+        assert verdict.error_code == ac.INVALID_JOINTS and fingers in verdict.error_string
+        other = ac.TrajectoryGoal([n], [2.0], [[REST[n]]], **{kind: {m.ARM_JOINTS[1]: 0.05}})
+        verdict = ac.validate_trajectory(other, REST, CONTRACT)
+        assert verdict.error_code == ac.INVALID_JOINTS and m.ARM_JOINTS[1] in verdict.error_string
 
 
 @settings(max_examples=200, deadline=None)
@@ -352,13 +354,54 @@ def test_the_fingers_held_by_a_trajectory_stop_it_when_they_move(
     assert not free.check(elapsed, desired, desired, at_rest=False, fingers=start + moved).done
 
 
-def test_an_arm_path_error_is_not_a_finger_stop():
+@settings(max_examples=200, deadline=None)
+@given(valid_goals(partial=False), st.floats(1e-3, 0.3), st.floats(1e-3, 0.3),
+       st.floats(-0.5, 0.5), st.sampled_from(["right", "left", "both"]), st.booleans(),
+       st.floats(0.0, 0.99))
+def test_the_fingers_are_judged_where_a_trajectory_ends_by_their_goal_tolerance(
+        case, tol_r, tol_l, moved, which, given_start, when):
+    """A finger goal tolerance fails the goal exactly when, at the end (the arm at rest within
+    its goal tolerances), the fingers' angle is further than the smallest given tolerance from
+    where they started; along the path it judges nothing."""
+    goal, current = case
+    tols = {"right": {m.FINGER_JOINTS[0]: tol_r}, "left": {m.FINGER_JOINTS[1]: tol_l},
+            "both": {m.FINGER_JOINTS[0]: tol_r, m.FINGER_JOINTS[1]: tol_l}}[which]
+    tolerance = min(tols.values())
+    goal = ac.TrajectoryGoal(goal.joint_names, goal.times_s, goal.positions,
+                             goal_tolerance=tols)
+    start = 0.2
+    judge = ac.TrajectoryJudge(goal, CONTRACT, fingers_start=start if given_start else None)
+    desired = [current[x] for x in goal.joint_names]
+    final = [float(q) for q in goal.positions[-1]]
+    end = goal.times_s[-1]
+    if not given_start:  # the first angle judged is where they started
+        assert not judge.check(0.0, desired, desired, at_rest=False, fingers=start).done
+    # on the path (before the end) a finger goal tolerance judges nothing
+    assert not judge.check(when * end, desired, desired, at_rest=False,
+                           fingers=start + moved).done
+    out = judge.check(end, final, final, at_rest=True, fingers=start + moved)
+    assert out.done
+    if abs(moved) > tolerance:
+        assert (out.status, out.error_code) == (ac.ABORTED, ac.GOAL_TOLERANCE_VIOLATED)
+        assert ac.fingers_moved(out.error_code, out.message)
+    else:
+        assert out.status == ac.SUCCEEDED
+    # without the fingers' angle nothing is judged on them
+    blind = ac.TrajectoryJudge(goal, CONTRACT, fingers_start=start)
+    assert blind.check(end, final, final, at_rest=True).status == ac.SUCCEEDED
+
+
+def test_an_arm_tolerance_error_is_not_a_finger_failure():
     n = m.ARM_JOINTS[0]
     goal = ac.TrajectoryGoal([n], [2.0], [[REST[n]]], path_tolerance={n: 0.01})
     out = ac.TrajectoryJudge(goal, CONTRACT).check(1.0, [REST[n]], [REST[n] + 0.1])
     assert out.error_code == ac.PATH_TOLERANCE_VIOLATED
     assert not ac.fingers_moved(out.error_code, out.message)
-    assert not ac.fingers_moved(ac.GOAL_TOLERANCE_VIOLATED, ac.FINGERS_MOVED + " 0.1 rad")
+    judge = ac.TrajectoryJudge(goal, CONTRACT, fingers_start=0.2)
+    late = judge.check(2.0 + CONTRACT.default_goal_time_tolerance_s + 0.1, [REST[n]],
+                       [REST[n] + 0.1], fingers=0.2)
+    assert late.error_code == ac.GOAL_TOLERANCE_VIOLATED
+    assert not ac.fingers_moved(late.error_code, late.message)
 
 
 def test_judge_goal_tolerance_and_settle_time():

@@ -240,11 +240,13 @@ def test_collision_aborts_with_the_controllers_message(graph):
     assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.error_string
 
 
-@pytest.mark.parametrize("watched", [True, False])
+@pytest.mark.parametrize("watched", [None, "path", "goal"])
 def test_a_finger_tolerance_stops_the_arm_when_the_fingers_move(graph, watched):
     """A trajectory with a path tolerance on the fingers (which it holds) is stopped, the arm
     frozen where it is, once the gripper's reading moves past it: the pick-and-place's watch
-    for a block slipping out. Without one the same reading changes nothing."""
+    for a block slipping out. With a goal tolerance on them instead the arm reaches its goal
+    and the goal fails there, judged on the driver's own reading at the end. Without either
+    the same reading changes nothing."""
     g = graph()
     g.ready()
     model = g.emulator.model
@@ -267,8 +269,11 @@ def test_a_finger_tolerance_stops_the_arm_when_the_fingers_move(graph, watched):
     assert moved > 0.1
     target = [-1.5, 1.2, -1.0, -0.5, -1.5]
     goal = trajectory_goal([(3.0, target)])
-    if watched:
-        goal.path_tolerance = [JointTolerance(name=n, position=0.05) for n in FINGER_JOINTS]
+    on_fingers = [JointTolerance(name=n, position=0.05) for n in FINGER_JOINTS]
+    if watched == "path":
+        goal.path_tolerance = on_fingers
+    elif watched == "goal":
+        goal.goal_tolerance = on_fingers
     sent = g.arm.send_goal_async(goal)
     assert g.spin_until(sent.done)
     result = sent.result().get_result_async()
@@ -276,7 +281,7 @@ def test_a_finger_tolerance_stops_the_arm_when_the_fingers_move(graph, watched):
     slipped.set()
     assert g.spin_until(result.done)
     res = result.result()
-    if not watched:
+    if watched is None:
         assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.error_string
         return
     assert res.status == GoalStatus.STATUS_ABORTED
@@ -284,7 +289,13 @@ def test_a_finger_tolerance_stops_the_arm_when_the_fingers_move(graph, watched):
     assert g.spin_until(lambda: model.statuses()[:5] == [p.STATUS_HOLDING] * 5)
     enc = model.encoders()
     stopped = [g.driver.model.encoder_to_angle(i + 1, enc[i]) for i in range(5)]
-    assert max(abs(a - b) for a, b in zip(stopped, target, strict=True)) > 0.2  # short of it
+    off = max(abs(a - b) for a, b in zip(stopped, target, strict=True))
+    if watched == "path":
+        assert res.result.error_code == ac.PATH_TOLERANCE_VIOLATED
+        assert off > 0.2  # short of it
+    else:
+        assert res.result.error_code == ac.GOAL_TOLERANCE_VIOLATED
+        assert off < 0.02  # there
 
 
 def test_cancel_stops_the_arm(graph):

@@ -65,11 +65,15 @@ class RosArmPort:
 
     def move(self, points: list[list[float]], times: list[float],
              velocities: list[list[float]] | None = None,
-             finger_tolerance: float | None = None) -> pp.MoveResult:
+             finger_tolerance: float | None = None,
+             finger_goal_tolerance: float | None = None) -> pp.MoveResult:
         goal = FollowJointTrajectory.Goal()
         goal.trajectory.joint_names = list(m.ARM_JOINTS)
         if finger_tolerance is not None:
             goal.path_tolerance = [JointTolerance(name=n, position=float(finger_tolerance))
+                                   for n in m.FINGER_JOINTS]
+        if finger_goal_tolerance is not None:
+            goal.goal_tolerance = [JointTolerance(name=n, position=float(finger_goal_tolerance))
                                    for n in m.FINGER_JOINTS]
         vels = velocities or [[] for _ in points]
         goal.trajectory.points = [

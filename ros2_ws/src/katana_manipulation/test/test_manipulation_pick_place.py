@@ -96,10 +96,13 @@ class FakePort:
         self.fingers = fingers
         self.calls: list[str] = []
         self.watches: list[float | None] = []  # each move's finger tolerance
+        self.ends: list[float | None] = []  # each move's finger goal tolerance
 
-    def move(self, points, times, velocities=None, finger_tolerance=None):
+    def move(self, points, times, velocities=None, finger_tolerance=None,
+             finger_goal_tolerance=None):
         self.calls.append("move")
         self.watches.append(finger_tolerance)
+        self.ends.append(finger_goal_tolerance)
         return pp.MoveResult(True)
 
     def joint_positions(self):
@@ -109,28 +112,39 @@ class FakePort:
 
 
 class ScriptedPort(FakePort):
-    """A fake arm whose fingers close on nothing during the move carrying the block (the block
-    slipped out), stopped there by the arm contract's finger tolerance when the move has one."""
+    """A fake arm whose fingers close by `closes` rad during the move carrying the block (the
+    block slips out, or settles deeper in the grip), judged by the arm contract with the
+    finger tolerances the move has: along the path halfway, then at its end."""
 
-    def __init__(self) -> None:
+    def __init__(self, closes: float = 0.275) -> None:
         super().__init__(fingers=0.3)
+        self.closes = closes
 
     def grip(self, position, effort):
         self.calls.append(f"grip {position:.2f}")
         self.fingers = -0.165 if position < -0.4 else position
         return pp.GripResult(True, self.fingers, position < -0.4, position >= -0.4)
 
-    def move(self, points, times, velocities=None, finger_tolerance=None):
-        super().move(points, times, velocities, finger_tolerance)
+    def move(self, points, times, velocities=None, finger_tolerance=None,
+             finger_goal_tolerance=None):
+        super().move(points, times, velocities, finger_tolerance, finger_goal_tolerance)
         if self.calls.count("move") != 2:  # the second move carries the block
             return pp.MoveResult(True)
-        start, self.fingers = self.fingers, -0.44
+        start = self.fingers
+        self.fingers = start - self.closes
+
+        def tolerance(value):
+            return dict.fromkeys(m.FINGER_JOINTS, -1.0 if value is None else value)
+
         judge = ac.TrajectoryJudge(
-            ac.TrajectoryGoal(m.ARM_JOINTS, times, points, path_tolerance=dict.fromkeys(
-                m.FINGER_JOINTS, -1.0 if finger_tolerance is None else finger_tolerance)),
+            ac.TrajectoryGoal(m.ARM_JOINTS, times, points,
+                              path_tolerance=tolerance(finger_tolerance),
+                              goal_tolerance=tolerance(finger_goal_tolerance)),
             ac.ArmContract(), fingers_start=start)
         out = judge.check(times[-1] / 2, points[0], points[0], fingers=self.fingers)
         if not out.done:
+            out = judge.check(times[-1], points[-1], points[-1], fingers=self.fingers)
+        if out.status == ac.SUCCEEDED:
             return pp.MoveResult(True)
         return pp.MoveResult(False, out.message,
                              fingers_moved=ac.fingers_moved(out.error_code, out.message))
@@ -150,18 +164,27 @@ def test_a_slip_while_carrying_stops_the_arm_there():
     assert all(w is None for w in port.watches[2:])  # the recovery moves are not watched
 
 
-def test_a_slip_past_the_watch_is_found_by_the_check_before_the_release():
-    """A backend that does not judge the finger tolerance (the fingers close, the move
-    succeeds): the check after the lowering still finds the slip, before the release."""
-
-    class Unwatched(ScriptedPort):
-        def move(self, points, times, velocities=None, finger_tolerance=None):
-            return super().move(points, times, velocities, None)
-
-    port = Unwatched()
+@pytest.mark.parametrize("closes", [0.03, 0.07])
+def test_the_grip_is_judged_where_the_carrying_move_ends(closes):
+    """Fingers that close by less than the carrying watch, but by more than slip_tolerance,
+    fail the move at its end (the contract's finger goal tolerance, judged by the backend on
+    its own measurement): a slip, found before the release and with nothing read from
+    joint_states. Fingers that close less are a grip that held: the block is placed."""
+    planner = pp.PickPlacePlanner()
+    assert planner.p.slip_tolerance < 0.07 < planner.p.carry_slip_tolerance
+    port = ScriptedPort(closes)
     req = pp.PickPlaceRequest((0.2, 0.0, 0.015), 0.0, (0.04, 0.04, 0.03), (0.2, 0.1, 0.015), 0.0)
-    res = pp.execute_pick_place(req, port, pp.PickPlacePlanner())
-    assert res.code == pp.BLOCK_SLIPPED and res.phase == "lower", res.message
+    res = pp.execute_pick_place(req, port, planner)
+    assert port.ends[:2] == [None, planner.p.slip_tolerance]
+    assert all(e is None for e in port.ends[2:])
+    if closes > planner.p.slip_tolerance:
+        assert res.code == pp.BLOCK_SLIPPED and res.phase == "lift", res.message
+        assert "by the end of the motion" in res.message
+        # the recovery opens the fingers wide and parks; the release never ran
+        assert port.calls[4:] == [f"grip {m.GRIPPER_OPEN:.2f}", "move"]
+    else:
+        assert res.code == pp.SUCCESS, res.message
+        assert port.calls[4] == port.calls[0]  # released at the approach's opening
 
 
 def test_slip_and_unresponsive_arm_are_reported():
@@ -171,7 +194,8 @@ def test_slip_and_unresponsive_arm_are_reported():
     assert res.code == pp.BLOCK_SLIPPED and "slipped" in res.message
 
     class Dead(ScriptedPort):
-        def move(self, points, times, velocities=None, finger_tolerance=None):
+        def move(self, points, times, velocities=None, finger_tolerance=None,
+                 finger_goal_tolerance=None):
             return pp.MoveResult(False, "no result within 3.0 s", timed_out=True)
 
     res = pp.execute_pick_place(req, Dead(), pp.PickPlacePlanner())

@@ -227,15 +227,18 @@ def test_gripper_holds_a_block_by_friction_only(world):
     assert abs(world.block_pose("red")[0][2] - 0.015) < 2e-3
 
 
-@pytest.mark.parametrize("watch", [None, 0.05])
+@pytest.mark.parametrize("watch", [None, "path", "goal"])
 def test_a_block_slipping_out_stops_a_trajectory_that_watches_the_fingers(world, watch):
     """A lift with the block taken out of the closed fingers (a slip): with a path tolerance on
-    the fingers the arm stops where they closed past it, near where it started; without one it
-    lifts the empty hand all the way."""
+    the fingers the arm stops where they closed past it, near where it started; with a goal
+    tolerance on them it lifts the empty hand all the way and the goal fails there; without
+    either it lifts the empty hand all the way, the slip unseen."""
     held = _grasp_red(world).position
-    tolerance = {} if watch is None else dict.fromkeys(m.FINGER_JOINTS, watch)
-    h = world.start_trajectory(TrajectoryGoal(list(m.ARM_JOINTS), [1.2], [ABOVE_Q],
-                                              path_tolerance=tolerance))
+    on_fingers = dict.fromkeys(m.FINGER_JOINTS, 0.05)
+    h = world.start_trajectory(TrajectoryGoal(
+        list(m.ARM_JOINTS), [1.2], [ABOVE_Q],
+        path_tolerance=on_fingers if watch == "path" else {},
+        goal_tolerance=on_fingers if watch == "goal" else {}))
     steps = 0
     while not h.outcome.done:
         world.step(6)
@@ -244,10 +247,16 @@ def test_a_block_slipping_out_stops_a_trajectory_that_watches_the_fingers(world,
             world.set_block_pose("red", (0.0, 0.25, 0.015), 0.0)
     fingers = np.mean([world.joint_positions()[n] for n in m.FINGER_JOINTS])
     arm = np.array([world.joint_positions()[n] for n in m.ARM_JOINTS])
-    if watch is None:
-        assert h.outcome.status == ac.SUCCEEDED and np.abs(arm - ABOVE_Q).max() < 0.02
-        assert fingers < held - 0.1  # closed on nothing, unseen
+    if watch != "path":
+        assert np.abs(arm - ABOVE_Q).max() < 0.02
+        assert fingers < held - 0.1  # closed on nothing
+        if watch is None:
+            assert h.outcome.status == ac.SUCCEEDED
+            return
+        assert h.outcome.error_code == ac.GOAL_TOLERANCE_VIOLATED, h.outcome
+        assert ac.fingers_moved(h.outcome.error_code, h.outcome.message), h.outcome
         return
+    assert h.outcome.error_code == ac.PATH_TOLERANCE_VIOLATED, h.outcome
     assert ac.fingers_moved(h.outcome.error_code, h.outcome.message), h.outcome
     world.step(60)  # stopped: the arm holds where the fingers moved, short of the lift
     after = np.array([world.joint_positions()[n] for n in m.ARM_JOINTS])

@@ -117,8 +117,13 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
         for phase in (seg.phase, *seg.also):
             feedback(phase, PHASES.index(phase) / len(PHASES))
         if seg.kind == "arm":
-            watch = planner.p.carry_slip_tolerance if seg.holding else None
-            res = port.move(seg.points, seg.times, seg.velocities or None, watch)
+            # A move that holds the block is watched for a slip all along it, and judged where
+            # it ends, where the block is about to be let go: both by the backend, on its own
+            # measurements (a read of joint_states after the result could be one from before
+            # the move's end, which arrives on another stream, in either order).
+            watch, end = ((planner.p.carry_slip_tolerance, planner.p.slip_tolerance)
+                          if seg.holding else (None, None))
+            res = port.move(seg.points, seg.times, seg.velocities or None, watch, end)
             if not res.ok:
                 _recover(port, planner, holding)
                 if res.fingers_moved:  # the backend stopped the arm there
@@ -136,40 +141,26 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
                 grip_at = g.position
             if seg.phase == "release":
                 holding, released_at = False, g.position
-        else:  # check the grip
-            if seg.phase == "grasp":
-                expected = seg.position
-                if not math.isfinite(grip_at) or grip_at < expected - planner.p.miss_tolerance:
-                    _recover(port, planner, holding=True)
-                    return PickPlaceResult(
-                        False, GRASP_MISSED,
-                        f"fingers closed to {grip_at:.3f} rad; a block holds them near "
-                        f"{expected:.3f}", seg.phase)
-                holding = True
-                continue
-            if seg.phase == "release":  # judged on the gripper's own result: no stale state
-                if not released_at >= seg.position:  # stalled on the block: open once more
-                    g = port.grip(m.GRIPPER_OPEN, planner.p.grip_effort)
-                    released_at = g.position if g.ok else released_at
-                if not released_at >= seg.position:
-                    # no recovery motion: leaving now would drag the block and its support
-                    return PickPlaceResult(
-                        False, ARM_DID_NOT_REACH,
-                        f"release: the fingers stayed at {released_at:.3f} rad, short of "
-                        f"{seg.position:.3f}: the block is still held, the arm stays where it is",
-                        seg.phase)
-                continue
-            joints = port.joint_positions()
-            if joints is None:
-                _recover(port, planner, holding)
-                return PickPlaceResult(False, TIMEOUT, "joint_states stopped", seg.phase)
-            fingers = _fingers(joints)
-            if fingers < grip_at - planner.p.slip_tolerance:
+        elif seg.phase == "grasp":  # check the grip, on the gripper's own result
+            expected = seg.position
+            if not math.isfinite(grip_at) or grip_at < expected - planner.p.miss_tolerance:
                 _recover(port, planner, holding=True)
                 return PickPlaceResult(
-                    False, BLOCK_SLIPPED,
-                    f"{seg.phase}: fingers closed from {grip_at:.3f} to {fingers:.3f} rad: "
-                    "the block slipped out", seg.phase)
+                    False, GRASP_MISSED,
+                    f"fingers closed to {grip_at:.3f} rad; a block holds them near "
+                    f"{expected:.3f}", seg.phase)
+            holding = True
+        else:  # check the release, on the gripper's own result
+            if not released_at >= seg.position:  # stalled on the block: open once more
+                g = port.grip(m.GRIPPER_OPEN, planner.p.grip_effort)
+                released_at = g.position if g.ok else released_at
+            if not released_at >= seg.position:
+                # no recovery motion: leaving now would drag the block and its support
+                return PickPlaceResult(
+                    False, ARM_DID_NOT_REACH,
+                    f"release: the fingers stayed at {released_at:.3f} rad, short of "
+                    f"{seg.position:.3f}: the block is still held, the arm stays where it is",
+                    seg.phase)
     feedback("park", 1.0)
     return PickPlaceResult(True, SUCCESS, "placed", "park")
 

@@ -132,7 +132,7 @@ class MoveResult:
     ok: bool
     message: str = ""
     timed_out: bool = False
-    fingers_moved: bool = False  # stopped by its finger tolerance (arm_contract.fingers_moved)
+    fingers_moved: bool = False  # failed by a finger tolerance (arm_contract.fingers_moved)
 
 
 @dataclass
@@ -150,12 +150,16 @@ class ArmPort(Protocol):
 
     def move(self, points: list[list[float]], times: list[float],
              velocities: list[list[float]] | None = None,
-             finger_tolerance: float | None = None) -> MoveResult:
+             finger_tolerance: float | None = None,
+             finger_goal_tolerance: float | None = None) -> MoveResult:
         """Follow arm-joint waypoints (ARM_JOINTS order) at times from start (s), passing them
         at the given velocities (None: at rest). With a finger tolerance (rad) the backend
         stops the arm as soon as the fingers move further than that from where they were at
         the start (the arm contract's path tolerance on a finger joint): a held block slipping
-        out lets them close."""
+        out lets them close. With a finger goal tolerance the move fails, the arm at its end,
+        when the fingers end further than that from where they were at the start (the
+        contract's goal tolerance on a finger joint): judged on the backend's own last
+        measurement, not on joint_states that may arrive before or after the result."""
         ...
 
     def grip(self, position: float, effort: float) -> GripResult: ...

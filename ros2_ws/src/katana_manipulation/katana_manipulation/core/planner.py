@@ -471,8 +471,8 @@ class PickPlacePlanner:
         segs.append(Segment("grasp", "grip", position=m.GRIPPER_CLOSED))
         segs.append(Segment("grasp", "check",
                             position=m.finger_angle_for_opening(e.grip_width)))
-        # lift, carry and lower run as one move, the fingers watched for a slip all along it;
-        # the check after it judges the grip where the block is about to be let go
+        # lift, carry and lower run as one move, the fingers watched for a slip all along it
+        # and judged where it ends, where the block is about to be let go (execute_pick_place)
         q = arm("lift", q, self._vertical(q, (e.grasp_xyz[0], e.grasp_xyz[1], e.z_above_pick),
                                           e.yaw_grip, e.q_grasp[4], e.grasp_xyz[2])
                 + [e.q_above_pick], holding=True)
@@ -481,7 +481,6 @@ class PickPlacePlanner:
                 holding=True)
         q = arm("lower", q, self._vertical(q, e.place_xyz, e.place_yaw_grip, e.q_place[4],
                                            e.z_above_place) + [e.q_place], holding=True)
-        segs.append(Segment("lower", "check"))
         segs.append(Segment("release", "grip", position=c.release))
         # the fingers must have let go: open at least half the pregrasp margin past the block
         let_go = m.finger_angle_for_opening(e.grip_width + self.p.pregrasp_margin / 2)
