@@ -187,6 +187,56 @@ def test_the_grip_is_judged_where_the_carrying_move_ends(closes):
         assert port.calls[4] == port.calls[0]  # released at the approach's opening
 
 
+def test_the_recovery_parks_from_where_the_failure_left_the_arm():
+    """After a slip the recovery opens the fingers, then plans the park from joints that show
+    them open (the port's `settled`), not from the joints it held when the gripper's result
+    came, which may be from before the arm stopped."""
+
+    class LaggingPort(ScriptedPort):
+        """joint_states that lag: until `settled` has waited for them, the port shows the arm
+        where it stood before its last move. The carrying move stops halfway (the slip)."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.pose = self.shown = list(m.PARK_POSE)
+            self.reads: list[list[float]] = []
+
+        def move(self, points, times, velocities=None, finger_tolerance=None,
+                 finger_goal_tolerance=None):
+            res = super().move(points, times, velocities, finger_tolerance,
+                               finger_goal_tolerance)
+            self.shown = self.pose
+            self.pose = [float(v) for v in points[-1 if res.ok else len(points) // 2]]
+            return res
+
+        def settled(self):
+            self.shown = self.pose
+            return True
+
+        def joint_positions(self):
+            self.reads.append(self.shown)
+            q = dict(zip(m.ARM_JOINTS, self.shown, strict=True))
+            q.update({n: self.fingers for n in m.FINGER_JOINTS})
+            return q
+
+    port = LaggingPort()
+    req = pp.PickPlaceRequest((0.2, 0.0, 0.015), 0.0, (0.04, 0.04, 0.03), (0.2, 0.1, 0.015), 0.0)
+    stopped_at = []
+    carry = port.move
+
+    def move(*args, **kwargs):
+        res = carry(*args, **kwargs)
+        if not res.ok:
+            stopped_at.append(port.pose)
+        return res
+
+    port.move = move
+    res = pp.execute_pick_place(req, port, pp.PickPlacePlanner())
+    assert res.code == pp.BLOCK_SLIPPED, res.message
+    assert port.calls[4:] == [f"grip {m.GRIPPER_OPEN:.2f}", "move"]  # open, then park
+    assert port.reads[-1] == stopped_at[0]  # the park was planned from where the slip stopped
+
+
 def test_slip_and_unresponsive_arm_are_reported():
     port = ScriptedPort()
     req = pp.PickPlaceRequest((0.2, 0.0, 0.015), 0.0, (0.04, 0.04, 0.03), (0.2, 0.1, 0.015), 0.0)

@@ -209,10 +209,16 @@ def planning_start(measured: Sequence[float], commanded: Sequence[float] | None)
 
 
 def _recover(port: ArmPort, planner: PickPlacePlanner, holding: bool) -> None:
-    """Best effort after a failure: open the gripper, go up and park (each call is bounded)."""
+    """Best effort after a failure: open the gripper, go up and park (each call is bounded).
+    The park is planned from joints read once they show the fingers where the opening left
+    them (a port's `settled`, where it has one): joints from before the failure's stop, which
+    the port may still hold when the gripper's result comes, would start it elsewhere."""
     try:
         opening = planner.p.park_gripper
         port.grip(m.GRIPPER_OPEN if opening is None else opening, 0.0)
+        settled = getattr(port, "settled", None)
+        if settled is not None:
+            settled()
         joints = port.joint_positions()
         if joints is None:
             return

@@ -146,7 +146,10 @@ class GripResult:
 
 
 class ArmPort(Protocol):
-    """What the sequence needs from an arm. Every call returns within a bounded time."""
+    """What the sequence needs from an arm. Every call returns within a bounded time. A port
+    may also offer `commanded` and `gripped` (where its last move and gripper goal that
+    succeeded ended) and `settled()` (a bounded wait until `joint_positions` shows the arm
+    there: RosArmPort's), which the sequence uses where present."""
 
     def move(self, points: list[list[float]], times: list[float],
              velocities: list[list[float]] | None = None,
