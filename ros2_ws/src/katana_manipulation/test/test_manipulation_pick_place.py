@@ -97,6 +97,7 @@ class FakePort:
         self.calls: list[str] = []
         self.watches: list[float | None] = []  # each move's finger tolerance
         self.ends: list[float | None] = []  # each move's finger goal tolerance
+        self.joint_reads = 0
 
     def move(self, points, times, velocities=None, finger_tolerance=None,
              finger_goal_tolerance=None):
@@ -106,6 +107,7 @@ class FakePort:
         return pp.MoveResult(True)
 
     def joint_positions(self):
+        self.joint_reads += 1
         q = dict(zip(m.ARM_JOINTS, m.PARK_POSE, strict=True))
         q.update({n: self.fingers for n in m.FINGER_JOINTS})
         return q
@@ -182,9 +184,11 @@ def test_the_grip_is_judged_where_the_carrying_move_ends(closes):
         assert "by the end of the motion" in res.message
         # the recovery opens the fingers wide and parks; the release never ran
         assert port.calls[4:] == [f"grip {m.GRIPPER_OPEN:.2f}", "move"]
+        assert port.joint_reads == 2  # where the task starts, where the recovery parks from
     else:
         assert res.code == pp.SUCCESS, res.message
         assert port.calls[4] == port.calls[0]  # released at the approach's opening
+        assert port.joint_reads == 1  # only where the task starts
 
 
 def test_the_recovery_parks_from_where_the_failure_left_the_arm():

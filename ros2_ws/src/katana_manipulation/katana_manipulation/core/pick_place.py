@@ -126,7 +126,7 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
             res = port.move(seg.points, seg.times, seg.velocities or None, watch, end)
             if not res.ok:
                 _recover(port, planner, holding)
-                if res.fingers_moved:  # the backend stopped the arm there
+                if res.fingers_moved:  # on the way (stopped there) or by the move's end
                     return PickPlaceResult(False, BLOCK_SLIPPED, f"{_phases(seg)}: "
                                            f"{res.message}: the block slipped out", seg.phase)
                 code = TIMEOUT if res.timed_out else ARM_DID_NOT_REACH

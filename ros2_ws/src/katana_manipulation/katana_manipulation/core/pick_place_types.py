@@ -95,7 +95,9 @@ class PickPlaceParams:
     clearance: float = 0.005  # above a stack top, for the lowest pad or held-block point
     descend_points: int = 3  # intermediate points that keep descents nearly vertical
     miss_tolerance: float = 0.08  # rad: fingers closing this far past the block: missed
-    slip_tolerance: float = 0.05  # rad: fingers closing this much further: slipped
+    # rad: fingers that end the carrying move this far from where they were at its start
+    # (the arm contract's goal tolerance on them): slipped
+    slip_tolerance: float = 0.05
     # rad: fingers closing this much further while the arm carries the block stop it (slipped);
     # lifting a block off its support squeezes it, the fingers closing by up to 0.06 rad in the
     # sim (bench_arm's trials), and a block gone lets them close by 0.17 rad or more
