@@ -520,15 +520,11 @@ class TrajectoryJudge:
         if fingers is not None and self.fingers_start is None:
             self.fingers_start = float(fingers)
         if elapsed_s < self.duration_s:
-            if fingers is not None and self.fingers_start is not None:
-                moved = abs(float(fingers) - self.fingers_start)
-                if moved > self.finger_tol:
-                    self.outcome = Outcome(
-                        ABORTED, PATH_TOLERANCE_VIOLATED,
-                        (f"{FINGERS_MOVED} {moved:.4f} rad from {self.fingers_start:.4f} rad "
-                         f"to {float(fingers):.4f} while the arm held them (tolerance "
-                         f"{self.finger_tol:.4f})"))
-                    return self.outcome
+            moved = self._fingers_past(fingers, self.finger_tol, PATH_TOLERANCE_VIOLATED,
+                                       "while the arm held them (tolerance")
+            if moved is not None:
+                self.outcome = moved
+                return self.outcome
             for j, n in enumerate(self.names):
                 err = abs(joint_error(actual[j], desired[j]))
                 if err > self.path_tol[j]:
@@ -541,16 +537,10 @@ class TrajectoryJudge:
             return self.outcome
         off = [abs(joint_error(a, f)) for a, f in zip(actual, self.final, strict=True)]
         if at_rest and all(o <= t for o, t in zip(off, self.goal_tol, strict=True)):
-            moved = (abs(float(fingers) - self.fingers_start)
-                     if fingers is not None and self.fingers_start is not None else 0.0)
-            if moved > self.finger_goal_tol:
-                self.outcome = Outcome(
-                    ABORTED, GOAL_TOLERANCE_VIOLATED,
-                    (f"{FINGERS_MOVED} {moved:.4f} rad from {self.fingers_start:.4f} rad "
-                     f"to {float(fingers):.4f} by the end of the motion (goal tolerance "
-                     f"{self.finger_goal_tol:.4f})"))
-                return self.outcome
-            self.outcome = Outcome(SUCCEEDED, SUCCESSFUL, "")
+            moved = self._fingers_past(fingers, self.finger_goal_tol, GOAL_TOLERANCE_VIOLATED,
+                                       "by the end of the motion (goal tolerance")
+            self.outcome = (moved if moved is not None
+                            else Outcome(SUCCEEDED, SUCCESSFUL, ""))
         elif elapsed_s > self.duration_s + self.goal_time_s:
             j = max(range(len(off)), key=lambda k: off[k] - self.goal_tol[k])
             still = "" if at_rest else "; still moving"
@@ -563,6 +553,19 @@ class TrajectoryJudge:
                 ),
             )
         return self.outcome
+
+    def _fingers_past(self, fingers: float | None, tolerance: float, error_code: int,
+                      when: str) -> Outcome | None:
+        """The failure (FINGERS_MOVED) when the fingers are further than `tolerance` from
+        where they started; None when they are not, or their angle is not known."""
+        if fingers is None or self.fingers_start is None:
+            return None
+        moved = abs(float(fingers) - self.fingers_start)
+        if moved <= tolerance:
+            return None
+        return Outcome(ABORTED, error_code,
+                       (f"{FINGERS_MOVED} {moved:.4f} rad from {self.fingers_start:.4f} rad to "
+                        f"{float(fingers):.4f} {when} {tolerance:.4f})"))
 
     def cancel(self, message: str = "canceled") -> Outcome:
         if not self.outcome.done:

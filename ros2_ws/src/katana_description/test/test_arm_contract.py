@@ -317,6 +317,28 @@ def test_path_and_goal_tolerances_may_name_the_held_fingers_once():
         assert verdict.error_code == ac.INVALID_JOINTS and m.ARM_JOINTS[1] in verdict.error_string
 
 
+FINGERS_START = 0.2  # rad: where the fingers are when a finger-tolerance goal starts
+
+
+def _on_fingers(case, tol_r: float, tol_l: float, which: str, given_start: bool, kind: str):
+    """`case`'s goal with finger tolerances (`kind`: path_tolerance or goal_tolerance) on the
+    right, left or both fingers; its judge (the fingers' start given or not), the desired row at
+    the start, and the tolerance that counts (the smallest given)."""
+    goal, current = case
+    tols = {"right": {m.FINGER_JOINTS[0]: tol_r}, "left": {m.FINGER_JOINTS[1]: tol_l},
+            "both": {m.FINGER_JOINTS[0]: tol_r, m.FINGER_JOINTS[1]: tol_l}}[which]
+    goal = ac.TrajectoryGoal(goal.joint_names, goal.times_s, goal.positions, **{kind: tols})
+    judge = ac.TrajectoryJudge(goal, CONTRACT,
+                               fingers_start=FINGERS_START if given_start else None)
+    return goal, judge, [current[x] for x in goal.joint_names], min(tols.values())
+
+
+def _moved(moved: float) -> float:
+    """How far fingers moved by `moved` from FINGERS_START are, as floats give it (at the
+    boundary too)."""
+    return abs((FINGERS_START + moved) - FINGERS_START)
+
+
 @settings(max_examples=200, deadline=None)
 @given(valid_goals(partial=False), st.floats(1e-3, 0.3), st.floats(1e-3, 0.3),
        st.floats(-0.5, 0.5), st.sampled_from(["right", "left", "both"]),
@@ -326,15 +348,9 @@ def test_the_fingers_held_by_a_trajectory_stop_it_when_they_move(
     """A finger path tolerance stops the motion, while it runs, exactly when the fingers'
     angle is further than the smallest given tolerance from where they started (given, or the
     first angle judged); after the plan's end only the goal tolerances count."""
-    goal, current = case
-    tols = {"right": {m.FINGER_JOINTS[0]: tol_r}, "left": {m.FINGER_JOINTS[1]: tol_l},
-            "both": {m.FINGER_JOINTS[0]: tol_r, m.FINGER_JOINTS[1]: tol_l}}[which]
-    tolerance = min(tols.values())
-    goal = ac.TrajectoryGoal(goal.joint_names, goal.times_s, goal.positions,
-                             path_tolerance=tols)
-    start = 0.2
-    judge = ac.TrajectoryJudge(goal, CONTRACT, fingers_start=start if given_start else None)
-    desired = [current[x] for x in goal.joint_names]
+    goal, judge, desired, tolerance = _on_fingers(case, tol_r, tol_l, which, given_start,
+                                                  "path_tolerance")
+    start = FINGERS_START
     # on the path, or up to half the goal time after its end (the goal is not yet late)
     end = goal.times_s[-1]
     late_s = CONTRACT.default_goal_time_tolerance_s
@@ -342,8 +358,7 @@ def test_the_fingers_held_by_a_trajectory_stop_it_when_they_move(
     if not given_start:  # the first angle judged is where they started
         assert not judge.check(0.0, desired, desired, at_rest=False, fingers=start).done
     out = judge.check(elapsed, desired, desired, at_rest=False, fingers=start + moved)
-    seen = abs((start + moved) - start)  # the distance as floats give it, at the boundary too
-    stops = elapsed < goal.times_s[-1] and seen > tolerance
+    stops = elapsed < goal.times_s[-1] and _moved(moved) > tolerance
     assert out.done == stops
     if stops:
         assert (out.status, out.error_code) == (ac.ABORTED, ac.PATH_TOLERANCE_VIOLATED)
@@ -364,15 +379,9 @@ def test_the_fingers_are_judged_where_a_trajectory_ends_by_their_goal_tolerance(
     """A finger goal tolerance fails the goal exactly when, at the end (the arm at rest within
     its goal tolerances), the fingers' angle is further than the smallest given tolerance from
     where they started; along the path it judges nothing."""
-    goal, current = case
-    tols = {"right": {m.FINGER_JOINTS[0]: tol_r}, "left": {m.FINGER_JOINTS[1]: tol_l},
-            "both": {m.FINGER_JOINTS[0]: tol_r, m.FINGER_JOINTS[1]: tol_l}}[which]
-    tolerance = min(tols.values())
-    goal = ac.TrajectoryGoal(goal.joint_names, goal.times_s, goal.positions,
-                             goal_tolerance=tols)
-    start = 0.2
-    judge = ac.TrajectoryJudge(goal, CONTRACT, fingers_start=start if given_start else None)
-    desired = [current[x] for x in goal.joint_names]
+    goal, judge, desired, tolerance = _on_fingers(case, tol_r, tol_l, which, given_start,
+                                                  "goal_tolerance")
+    start = FINGERS_START
     final = [float(q) for q in goal.positions[-1]]
     end = goal.times_s[-1]
     if not given_start:  # the first angle judged is where they started
@@ -382,7 +391,7 @@ def test_the_fingers_are_judged_where_a_trajectory_ends_by_their_goal_tolerance(
                            fingers=start + moved).done
     out = judge.check(end, final, final, at_rest=True, fingers=start + moved)
     assert out.done
-    if abs((start + moved) - start) > tolerance:  # the distance as floats give it
+    if _moved(moved) > tolerance:
         assert (out.status, out.error_code) == (ac.ABORTED, ac.GOAL_TOLERANCE_VIOLATED)
         assert ac.fingers_moved(out.error_code, out.message)
     else:
