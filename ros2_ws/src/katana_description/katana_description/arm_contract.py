@@ -521,7 +521,7 @@ class TrajectoryJudge:
             self.fingers_start = float(fingers)
         if elapsed_s < self.duration_s:
             moved = self._fingers_past(fingers, self.finger_tol, PATH_TOLERANCE_VIOLATED,
-                                       "while the arm held them (tolerance")
+                                       "while the arm held them", "tolerance")
             if moved is not None:
                 self.outcome = moved
                 return self.outcome
@@ -538,7 +538,7 @@ class TrajectoryJudge:
         off = [abs(joint_error(a, f)) for a, f in zip(actual, self.final, strict=True)]
         if at_rest and all(o <= t for o, t in zip(off, self.goal_tol, strict=True)):
             moved = self._fingers_past(fingers, self.finger_goal_tol, GOAL_TOLERANCE_VIOLATED,
-                                       "by the end of the motion (goal tolerance")
+                                       "by the end of the motion", "goal tolerance")
             self.outcome = (moved if moved is not None
                             else Outcome(SUCCEEDED, SUCCESSFUL, ""))
         elif elapsed_s > self.duration_s + self.goal_time_s:
@@ -555,7 +555,7 @@ class TrajectoryJudge:
         return self.outcome
 
     def _fingers_past(self, fingers: float | None, tolerance: float, error_code: int,
-                      when: str) -> Outcome | None:
+                      when: str, kind: str) -> Outcome | None:
         """The failure (FINGERS_MOVED) when the fingers are further than `tolerance` from
         where they started; None when they are not, or their angle is not known."""
         if fingers is None or self.fingers_start is None:
@@ -565,7 +565,7 @@ class TrajectoryJudge:
             return None
         return Outcome(ABORTED, error_code,
                        (f"{FINGERS_MOVED} {moved:.4f} rad from {self.fingers_start:.4f} rad to "
-                        f"{float(fingers):.4f} {when} {tolerance:.4f})"))
+                        f"{float(fingers):.4f} {when} ({kind} {tolerance:.4f})"))
 
     def cancel(self, message: str = "canceled") -> Outcome:
         if not self.outcome.done:
