@@ -99,20 +99,19 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
         except PlanError as exc:  # the fingers may have opened, in the air: nothing else moved
             return PickPlaceResult(False, exc.code, str(exc))
     if g is None:
-        _recover(port, planner, False)
+        _recover(port, planner)
         return PickPlaceResult(False, ABORTED, "canceled", "approach")
     if not g.ok:
         code = TIMEOUT if g.timed_out else ARM_DID_NOT_REACH
-        _recover(port, planner, False)
+        _recover(port, planner)
         return PickPlaceResult(False, code, f"approach: gripper: {g.message}", "approach")
     first = segments[0]
     if first.kind == "grip" and first.phase == "approach" and first.position == opening:
         segments = segments[1:]
     grip_at = released_at = math.nan
-    holding = False
     for seg in segments:
         if cancelled():
-            _recover(port, planner, holding)
+            _recover(port, planner)
             return PickPlaceResult(False, ABORTED, "canceled", seg.phase)
         for phase in (seg.phase, *seg.also):
             feedback(phase, PHASES.index(phase) / len(PHASES))
@@ -125,7 +124,7 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
                           if seg.holding else (None, None))
             res = port.move(seg.points, seg.times, seg.velocities or None, watch, end)
             if not res.ok:
-                _recover(port, planner, holding)
+                _recover(port, planner)
                 if res.fingers_moved:  # on the way (stopped there) or by the move's end
                     return PickPlaceResult(False, BLOCK_SLIPPED, f"{_phases(seg)}: "
                                            f"{res.message}: the block slipped out", seg.phase)
@@ -135,21 +134,20 @@ def execute_pick_place(req: PickPlaceRequest, port: ArmPort, planner: PickPlaceP
             g = port.grip(seg.position, planner.p.grip_effort)
             if not g.ok:
                 code = TIMEOUT if g.timed_out else ARM_DID_NOT_REACH
-                _recover(port, planner, holding)
+                _recover(port, planner)
                 return PickPlaceResult(False, code, f"{seg.phase}: gripper: {g.message}", seg.phase)
             if seg.phase == "grasp":
                 grip_at = g.position
             if seg.phase == "release":
-                holding, released_at = False, g.position
+                released_at = g.position
         elif seg.phase == "grasp":  # check the grip, on the gripper's own result
             expected = seg.position
             if not math.isfinite(grip_at) or grip_at < expected - planner.p.miss_tolerance:
-                _recover(port, planner, holding=True)
+                _recover(port, planner)
                 return PickPlaceResult(
                     False, GRASP_MISSED,
                     f"fingers closed to {grip_at:.3f} rad; a block holds them near "
                     f"{expected:.3f}", seg.phase)
-            holding = True
         else:  # check the release, on the gripper's own result
             if not released_at >= seg.position:  # stalled on the block: open once more
                 g = port.grip(m.GRIPPER_OPEN, planner.p.grip_effort)
@@ -208,7 +206,7 @@ def planning_start(measured: Sequence[float], commanded: Sequence[float] | None)
     return [float(v) for v in measured]
 
 
-def _recover(port: ArmPort, planner: PickPlacePlanner, holding: bool) -> None:
+def _recover(port: ArmPort, planner: PickPlacePlanner) -> None:
     """Best effort after a failure: open the gripper, go up and park (each call is bounded).
     The park is planned from joints read once they show the fingers where the opening left
     them (a port's `settled`, where it has one): joints from before the failure's stop, which
