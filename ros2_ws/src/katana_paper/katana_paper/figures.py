@@ -80,7 +80,7 @@ def figure4(results: Sequence[RunResult], path: Path, strategy: str = "q1") -> N
         ax.set_xlabel("experiment")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel(f"cumulative experience (mean of {len(runs)} runs)")
-    if not planned[-1, :n_states].any():  # no planning yet (short runs, or a strategy that never plans)
+    if not planned[-1, :n_states].any():  # short runs, or a strategy that never plans
         axes[1].text(0.5, 0.5, "no planned experiments", transform=axes[1].transAxes,
                      ha="center", va="center", color="0.4")
     # one legend (the heights' colours are shared), on the planned panel where it has lines
