@@ -80,13 +80,14 @@ def figure4(results: Sequence[RunResult], path: Path, strategy: str = "q1") -> N
         ax.set_xlabel("experiment")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel(f"cumulative experience (mean of {len(runs)} runs)")
-    if not planned[-1, :n_states].any():  # short runs, or a strategy that never plans
+    # one legend (the heights' colours are shared): on the planned panel, or on the direct one
+    # while nothing was planned (short runs, a strategy that never plans)
+    labelled = [ax for ax in (axes[1], axes[0]) if ax.get_legend_handles_labels()[0]]
+    if axes[1] not in labelled:
         axes[1].text(0.5, 0.5, "no planned experiments", transform=axes[1].transAxes,
                      ha="center", va="center", color="0.4")
-    # one legend (the heights' colours are shared), on the planned panel where it has lines
-    legend_axes = axes[1] if axes[1].get_legend_handles_labels()[0] else axes[0]
-    if legend_axes.get_legend_handles_labels()[0]:
-        legend_axes.legend(fontsize=8, loc="upper left")
+    if labelled:
+        labelled[0].legend(fontsize=8, loc="upper left")
     fig.suptitle(
         "Figure 4: developmental stages; dotted lines: end of direct exploration "
         f"per height in run seed={first.config.seed}",
